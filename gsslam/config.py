@@ -1,0 +1,199 @@
+"""Typed, frozen configuration tree, loaded from YAML with dotted ``key=value`` overrides.
+
+Each stage owns one section dataclass. ``load_config(path, overrides)`` starts from the
+defaults below, applies a YAML file (only keys that exist are accepted) and then the overrides,
+e.g. ``["mapper.iterations=50", "loop.enabled=false"]``. The resolved config is written next to
+every result with :func:`save_config`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from gsslam.errors import GsslamError
+
+
+class ConfigError(GsslamError):
+    """A config file or override names an unknown key or a value of the wrong type."""
+
+
+@dataclass(frozen=True)
+class FlowConfig:
+    method: str = "dis"  # "dis" | "farneback"
+    dis_preset: str = "medium"  # "ultrafast" | "fast" | "medium"
+    max_side: int = 320  # flow is computed on images downscaled so that max(H, W) <= this
+    fb_threshold_px: float = 1.0  # forward-backward consistency threshold, at flow resolution
+
+
+@dataclass(frozen=True)
+class KeyframeConfig:
+    min_flow_px: float = 12.0  # median flow (at full resolution) that makes a new keyframe
+    max_gap: int = 10  # at most this many frames between keyframes
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    submap_size: int = 6  # K: keyframes per submap after the shared one
+    max_points_per_frame: int = 3000  # correspondences / points sampled per frame
+    min_parallax_deg: float = 1.0  # below this, mono triangulation is not trusted
+    ransac_threshold_px: float = 1.0
+    min_depth: float = 0.1
+    max_depth: float = 10.0
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    flow_sigma_px: float = 1.0
+    flow_inlier_prior: float = 0.9  # inlier probability of the robust flow likelihood
+    flow_outlier_range_px: float = 50.0  # width of the uniform outlier density
+    scale_sigma: float = 0.05  # std of the log-scale drift factor
+    adjacency_sigma_m: float = 0.02
+    loop_sigma_m: float = 0.05
+    depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
+    prior_rot_sigma: float = 1e-4
+    prior_trans_sigma: float = 1e-4
+    prior_scale_sigma: float = 1e-4
+    relinearize_threshold: float = 0.01
+    relinearize_skip: int = 1
+    final_batch_refinement: bool = True
+
+
+@dataclass(frozen=True)
+class MapperConfig:
+    enabled: bool = True
+    device: str = "auto"  # "auto" | "cpu" | "cuda"
+    max_side: int = 160  # mapper resolution: images downscaled so max(H, W) <= this
+    iterations: int = 30  # optimisation steps per map update
+    window: int = 8  # keyframes in the sliding window
+    lambda_ssim: float = 0.2
+    lambda_depth: float = 5.0  # inverse-depth L1 (lambda_D)
+    lambda_depth_normal: float = 0.05  # lambda_DN
+    lambda_scale: float = 10.0  # lambda_S
+    lambda_flow: float = 1.0
+    lambda_pose_depth: float = 10.0  # intra-submap pose refinement, scale-invariant depth term
+    pose_refinement: bool = True
+    unmapped_alpha: float = 0.5  # pixels with rendered alpha below this are "unmapped"
+    max_gaussians: int = 50000
+    depth_feedback: bool = False  # send rendered depths back to the graph (see docs)
+    lr_means: float = 1e-3
+    lr_colors: float = 2.5e-2
+    lr_opacity: float = 5e-2
+    lr_scales: float = 5e-3
+    lr_quats: float = 1e-3
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    enabled: bool = True
+    skip_recent: int = 2  # submaps right before the current one are never loop candidates
+    min_overlap: float = 0.3  # reprojection overlap ratio
+    min_score: float = 0.5  # 0.7 * point overlap + 0.3 * appearance overlap
+    min_inliers: int = 30
+    inlier_threshold_m: float = 0.05
+    max_candidates: int = 3
+
+
+@dataclass(frozen=True)
+class Config:
+    mode: str = "mono"  # "mono" | "rgbd"
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    mapper: MapperConfig = field(default_factory=MapperConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    seed: int = 0
+
+
+def _coerce(value: Any, typ: Any, key: str) -> Any:
+    """Convert ``value`` (from YAML or a string override) to the annotated type ``typ``."""
+    if typ is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
+            return value.lower() in ("true", "1", "yes", "on")
+        raise ConfigError(f"{key}: expected true/false, got {value!r}")
+    if typ is int:
+        try:
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}") from None
+    if typ is float:
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{key}: expected a number, got {value!r}") from None
+    if typ is str:
+        return str(value)
+    return value
+
+
+def _apply(obj: Any, updates: dict, prefix: str = "") -> Any:
+    hints = typing.get_type_hints(type(obj))
+    names = {f.name for f in dataclasses.fields(obj)}
+    changes = {}
+    for key, value in updates.items():
+        full = f"{prefix}{key}"
+        if key not in names:
+            raise ConfigError(f"unknown config key '{full}' (known: {', '.join(sorted(names))})")
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current):
+            if not isinstance(value, dict):
+                raise ConfigError(f"'{full}' is a section; give its keys, e.g. {full}.<key>=...")
+            changes[key] = _apply(current, value, f"{full}.")
+        else:
+            changes[key] = _coerce(value, hints[key], full)
+    return dataclasses.replace(obj, **changes)
+
+
+def parse_override(text: str) -> dict:
+    """``"a.b=3"`` -> ``{"a": {"b": "3"}}`` (the value is coerced later, by the field's type)."""
+    if "=" not in text:
+        raise ConfigError(f"override '{text}' must look like section.key=value")
+    key, value = text.split("=", 1)
+    parts = key.strip().split(".")
+    out: dict = {}
+    node = out
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = yaml.safe_load(value) if value.strip() else ""
+    return out
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None, **top: Any) -> Config:
+    """Defaults, then the YAML file at ``path``, then dotted ``overrides``, then keyword top-level keys."""
+    cfg = Config()
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"config file not found: {p}")
+        try:
+            data = yaml.safe_load(p.read_text()) or {}
+        except yaml.YAMLError as e:
+            raise ConfigError(f"config file {p} is not valid YAML: {e}") from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"config file {p} must hold a mapping of sections")
+        cfg = _apply(cfg, data)
+    for text in overrides or []:
+        cfg = _apply(cfg, parse_override(text))
+    if top:
+        cfg = _apply(cfg, {k: v for k, v in top.items() if v is not None})
+    if cfg.mode not in ("mono", "rgbd"):
+        raise ConfigError(f"mode must be 'mono' or 'rgbd', got {cfg.mode!r}")
+    return cfg
+
+
+def config_to_dict(cfg: Any) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def save_config(cfg: Config, path: str | Path) -> None:
+    Path(path).write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False))

@@ -1,0 +1,136 @@
+"""Core value types shared by every stage: camera intrinsics, frames and trajectories.
+
+Conventions (see docs/conventions.md):
+- ``T_a_b`` is a 4x4 homogeneous matrix mapping points in frame b to frame a.
+- Camera frames are OpenCV-style: x right, y down, z forward; units are metres and seconds.
+- Images are ``[H, W, 3]`` float32 RGB in [0, 1]; depth is ``[H, W]`` float32 metres with
+  invalid pixels set to NaN.
+- Quaternions at file boundaries are (qx, qy, qz, qw) as in the TUM format.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gsslam.errors import GsslamError
+
+
+class TypesError(GsslamError):
+    """A value does not have the shape or content a core type needs."""
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics with optional OpenCV distortion (k1, k2, p1, p2[, k3...]).
+
+    Loaders undistort images once when ``distortion`` is non-zero and hand out frames whose
+    intrinsics have ``distortion == ()`` (see docs/conventions.md).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not (self.fx > 0 and self.fy > 0):
+            raise TypesError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if self.width <= 0 or self.height <= 0:
+            raise TypesError(f"image size must be positive, got {self.width}x{self.height}")
+
+    @property
+    def K(self) -> np.ndarray:  # [3, 3]
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return any(abs(d) > 0 for d in self.distortion)
+
+    def scaled(self, factor: float) -> CameraIntrinsics:
+        """Intrinsics of the image resized by ``factor`` (pixel-centre convention)."""
+        w = max(1, int(round(self.width * factor)))
+        h = max(1, int(round(self.height * factor)))
+        sx, sy = w / self.width, h / self.height
+        return CameraIntrinsics(
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+            width=w,
+            height=h,
+            distortion=self.distortion,
+        )
+
+    def undistorted(self) -> CameraIntrinsics:
+        return CameraIntrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height, ())
+
+
+@dataclass
+class Frame:
+    """One input frame.
+
+    ``image``: [H, W, 3] float32 in [0, 1]; ``depth``: [H, W] float32 metres, NaN = invalid, or None;
+    ``T_world_cam_gt``: [4, 4] ground-truth pose when the dataset has one for this timestamp.
+    """
+
+    index: int
+    timestamp: float
+    image: np.ndarray
+    intrinsics: CameraIntrinsics
+    depth: np.ndarray | None = None
+    T_world_cam_gt: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.image.ndim != 3 or self.image.shape[2] != 3:
+            raise TypesError(f"frame {self.index}: image must be [H, W, 3], got {self.image.shape}")
+        h, w = self.image.shape[:2]
+        if (w, h) != (self.intrinsics.width, self.intrinsics.height):
+            raise TypesError(
+                f"frame {self.index}: image is {w}x{h} but intrinsics say "
+                f"{self.intrinsics.width}x{self.intrinsics.height}"
+            )
+        if self.depth is not None and self.depth.shape != (h, w):
+            raise TypesError(
+                f"frame {self.index}: depth is {self.depth.shape[1]}x{self.depth.shape[0]} "
+                f"but the image is {w}x{h}; depth must be registered to the image"
+            )
+
+    @property
+    def gray(self) -> np.ndarray:  # [H, W] float32 in [0, 1]
+        return (self.image @ np.array([0.299, 0.587, 0.114], dtype=np.float32)).astype(np.float32)
+
+
+@dataclass
+class Trajectory:
+    """A timed sequence of poses ``T_world_cam``: timestamps [N] float64 seconds, poses [N, 4, 4]."""
+
+    timestamps: np.ndarray
+    poses: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
+        self.poses = np.asarray(self.poses, dtype=np.float64)
+        if self.poses.ndim != 3 or self.poses.shape[1:] != (4, 4):
+            raise TypesError(f"poses must be [N, 4, 4], got {self.poses.shape}")
+        if len(self.timestamps) != len(self.poses):
+            raise TypesError(
+                f"{len(self.timestamps)} timestamps but {len(self.poses)} poses; they must match"
+            )
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def positions(self) -> np.ndarray:  # [N, 3]
+        return self.poses[:, :3, 3]
+
+    def path_length(self) -> float:
+        if len(self) < 2:
+            return 0.0
+        return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())

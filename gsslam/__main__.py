@@ -1,0 +1,3 @@
+from gsslam.cli import main
+
+main()

@@ -1,0 +1,167 @@
+"""The ``gsslam`` command line: a thin layer over the library.
+
+Heavy modules are imported inside each command. Errors the library raises on purpose
+(:class:`gsslam.errors.GsslamError`) are printed as one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from gsslam.errors import GsslamError
+
+app = typer.Typer(
+    name="gsslam",
+    help="Dense monocular / RGB-D SLAM: GTSAM iSAM2 graph + 3D Gaussian map.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+bench_app = typer.Typer(help="Benchmarks that print timing numbers (not tests).", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+_log = logging.getLogger("gsslam")
+
+
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+
+
+def _echo_table(rows: list[tuple[str, str]], title: str | None = None) -> None:
+    if title:
+        typer.echo(title)
+    width = max((len(k) for k, _ in rows), default=0)
+    for k, v in rows:
+        typer.echo(f"  {k:<{width}}  {v}")
+
+
+@app.callback()
+def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False) -> None:
+    _setup_logging(verbose)
+
+
+@app.command("eval")
+def eval_cmd(
+    gt: Annotated[Path, typer.Argument(help="Ground-truth trajectory file.")],
+    est: Annotated[Path, typer.Argument(help="Estimated trajectory file.")],
+    align: Annotated[str, typer.Option(help="Alignment before ATE: sim3 | se3 | none.")] = "sim3",
+    fmt: Annotated[str, typer.Option("--format", help="File format of both files: tum | kitti.")] = "tum",
+    max_dt: Annotated[float, typer.Option(help="Max timestamp difference for association (s).")] = 0.02,
+    rpe_delta: Annotated[int, typer.Option(help="RPE frame delta.")] = 1,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG: aligned estimate over ground truth.")] = None,
+) -> None:
+    """ATE (after Umeyama alignment) and RPE of EST against GT."""
+    from gsslam.eval.report import evaluate_files
+
+    report = evaluate_files(gt, est, align=align, fmt=fmt, max_dt=max_dt, rpe_delta=rpe_delta, plot=plot)
+    if as_json:
+        typer.echo(json.dumps(report.to_dict(), indent=2))
+    else:
+        _echo_table(report.table_rows(), title=f"{est} vs {gt} (align={align})")
+
+
+@app.command("run")
+def run_cmd(
+    path: Annotated[Path, typer.Argument(help="Sequence folder (or video file for --dataset images).")],
+    dataset: Annotated[str, typer.Option(help="tum | euroc | kitti | 7scenes | images | synthetic")] = "tum",
+    mode: Annotated[str, typer.Option(help="mono | rgbd")] = "mono",
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/latest"),
+    config: Annotated[Optional[Path], typer.Option(help="YAML config file.")] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")] = None,
+    max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
+    intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+) -> None:
+    """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT."""
+    from gsslam.config import load_config
+    from gsslam.pipeline import run_sequence
+
+    cfg = load_config(config, set_ or [], mode=mode)
+    ds_kwargs = {"intrinsics_file": intrinsics} if intrinsics is not None else {}
+    result = run_sequence(path, dataset, cfg, out, max_frames=max_frames, progress=progress, **ds_kwargs)
+    _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
+
+
+@app.command("render")
+def render_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run` (holds map.ply).")],
+    out: Annotated[Path, typer.Option(help="Folder for the rendered PNGs.")] = Path("renders"),
+    every: Annotated[int, typer.Option(help="Render every N-th pose of trajectory.tum.")] = 10,
+) -> None:
+    """Render frames from a saved Gaussian map along the saved trajectory."""
+    from gsslam.mapping.render_run import render_run
+
+    n = render_run(run_dir, out, every=every)
+    typer.echo(f"wrote {n} renders to {out}")
+
+
+def _bench(name: str, **kwargs) -> None:
+    import importlib
+
+    mod = importlib.import_module(f"gsslam.bench.{name}")
+    result = mod.run(**kwargs)
+    typer.echo(json.dumps(result, indent=2))
+
+
+@bench_app.command("graph")
+def bench_graph(
+    sizes: Annotated[str, typer.Option(help="Comma-separated keyframe counts.")] = "50,200,800",
+    points: Annotated[int, typer.Option(help="Flow correspondences per keyframe pair.")] = 1000,
+) -> None:
+    """iSAM2 update time per keyframe and batch LM time on a synthetic chain."""
+    _bench("graph", sizes=[int(s) for s in sizes.split(",")], points=points)
+
+
+@bench_app.command("raster")
+def bench_raster(
+    gaussians: Annotated[int, typer.Option(help="Number of Gaussians.")] = 20000,
+    width: Annotated[int, typer.Option()] = 160,
+    height: Annotated[int, typer.Option()] = 120,
+    repeats: Annotated[int, typer.Option()] = 10,
+) -> None:
+    """Forward+backward time of the rasterizer (CPU, and CUDA when present)."""
+    _bench("raster", gaussians=gaussians, width=width, height=height, repeats=repeats)
+
+
+@bench_app.command("pipeline")
+def bench_pipeline(
+    path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,
+    max_frames: Annotated[int, typer.Option()] = 60,
+    mode: Annotated[str, typer.Option()] = "rgbd",
+) -> None:
+    """Tracking + graph FPS without the mapper."""
+    _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
+
+
+@bench_app.command("loop")
+def bench_loop(
+    sizes: Annotated[str, typer.Option(help="Comma-separated submap counts.")] = "10,100,500",
+) -> None:
+    """Loop-detection time per submap as the map grows."""
+    _bench("loop", sizes=[int(s) for s in sizes.split(",")])
+
+
+def main() -> None:
+    try:
+        app()
+    except GsslamError as e:
+        typer.echo(f"error: {e}", err=True)
+        raise SystemExit(2) from None
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        raise SystemExit(130) from None
+
+
+if __name__ == "__main__":
+    main()

@@ -134,3 +134,69 @@ class Trajectory:
         if len(self) < 2:
             return 0.0
         return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
+
+
+@dataclass
+class SubmapEncoding:
+    """What a submap encoder produces for K+1 keyframes (SING3R's Sub-Track3R output).
+
+    Frame 0 is the keyframe shared with the previous submap (for the first submap: the first
+    keyframe). All arrays are in the submap's own local frame and units (one consistent scale
+    inside the submap; for RGB-D the units are metres):
+
+    - ``frame_indices``: [K+1] dataset indices of the keyframes.
+    - ``T_local_cam``: [K+1, 4, 4] rigid poses camera -> submap-local; ``T_local_cam[0] = I``.
+    - ``points_cam``: [K+1, h, w, 3] per-frame point maps X^self in each camera's own frame
+      (NaN where unknown), at the resolution of ``intrinsics``.
+    - ``confidence``: [K+1, h, w] in [0, 1] (0 where unknown).
+    - ``intrinsics``: intrinsics at the point maps' resolution.
+    """
+
+    frame_indices: list[int]
+    T_local_cam: np.ndarray
+    points_cam: np.ndarray
+    confidence: np.ndarray
+    intrinsics: CameraIntrinsics
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.frame_indices)
+        if self.T_local_cam.shape != (n, 4, 4):
+            raise TypesError(f"T_local_cam must be [{n}, 4, 4], got {self.T_local_cam.shape}")
+        if self.points_cam.ndim != 4 or self.points_cam.shape[0] != n or self.points_cam.shape[3] != 3:
+            raise TypesError(f"points_cam must be [{n}, h, w, 3], got {self.points_cam.shape}")
+        if self.confidence.shape != self.points_cam.shape[:3]:
+            raise TypesError(f"confidence must be {self.points_cam.shape[:3]}, got {self.confidence.shape}")
+
+    @property
+    def depths(self) -> np.ndarray:  # [K+1, h, w] z in local units (NaN unknown)
+        return self.points_cam[..., 2]
+
+
+@dataclass
+class Correspondences:
+    """Pixel matches from a source keyframe to a target keyframe (e.g. from dense flow).
+
+    ``uv_src``, ``uv_tgt``: [N, 2] pixel coordinates in the *full-resolution* images of the two
+    frames; ``depth_src``: [N] source depth (z) in the units of the source submap (NaN unknown);
+    ``weight``: [N] a-priori weights in [0, 1] (e.g. flow forward-backward consistency).
+    """
+
+    src_index: int
+    tgt_index: int
+    uv_src: np.ndarray
+    uv_tgt: np.ndarray
+    depth_src: np.ndarray
+    weight: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.uv_src)
+        for name in ("uv_src", "uv_tgt"):
+            if getattr(self, name).shape != (n, 2):
+                raise TypesError(f"{name} must be [{n}, 2], got {getattr(self, name).shape}")
+        for name in ("depth_src", "weight"):
+            if getattr(self, name).shape != (n,):
+                raise TypesError(f"{name} must be [{n}], got {getattr(self, name).shape}")
+
+    def __len__(self) -> int:
+        return len(self.uv_src)

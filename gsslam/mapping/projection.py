@@ -1,0 +1,141 @@
+"""Projection of 3D Gaussians to the image plane (EWA splatting), shared by every rasterizer backend.
+
+Pure torch and differentiable w.r.t. the Gaussian parameters and ``T_cam_world``. Pixel ``(u, v)``
+has its centre at integer coordinates (OpenCV convention, the one of :class:`gsslam.types.CameraIntrinsics`).
+
+Gaussian rotations are quaternions in (w, x, y, z) order (unnormalized is fine).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from gsslam.errors import GsslamError
+
+LOW_PASS = 0.3  # px^2 added to the 2D covariance (3DGS anti-aliasing low-pass filter)
+SIGMA_CUTOFF = 3.0  # a Gaussian touches a pixel only inside its 3-sigma ellipse
+POWER_CUTOFF = 0.5 * SIGMA_CUTOFF**2  # 0.5 * d^T Sigma2d^-1 d above this: no contribution
+ALPHA_MIN = 1.0 / 255.0  # smaller per-pair alphas are skipped
+ALPHA_MAX = 0.99  # per-pair alpha clamp
+T_MIN = 1e-4  # transmittance early stop
+
+
+class RasterizeError(GsslamError):
+    """Inputs to the Gaussian rasterizer have wrong shapes, dtypes or devices, or a backend is missing."""
+
+
+@dataclass
+class Projected:
+    """Per-Gaussian image-plane quantities; ``radii == 0`` marks Gaussians that draw nothing."""
+
+    means2d: Tensor  # [N, 2] projected centres (px)
+    cov2d: Tensor  # [N, 2, 2] 2D covariance incl. the low-pass term (px^2)
+    conics: Tensor  # [N, 3] (a, b, c) of the inverse covariance [[a, b], [b, c]]
+    depths: Tensor  # [N] camera z of the centres (m)
+    radii: Tensor  # [N] int64 pixel radius, ceil(3 sqrt(largest eigenvalue)); 0 = not visible
+    normals: Tensor  # [N, 3] camera-frame shortest-axis normals, flipped to face the camera
+
+
+def quat_to_rotmat(quats: Tensor) -> Tensor:  # [N, 4] (w, x, y, z) -> [N, 3, 3]
+    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    w, x, y, z = q.unbind(-1)
+    R = torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    )
+    return R.reshape(q.shape[:-1] + (3, 3))
+
+
+def check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width, height) -> None:
+    n = means.shape[0] if means.dim() == 2 else -1
+    expected = {
+        "means": (means, (n, 3)),
+        "quats": (quats, (n, 4)),
+        "scales": (scales, (n, 3)),
+        "opacities": (opacities, (n,)),
+        "colors": (colors, (n, 3)),
+        "T_cam_world": (T_cam_world, (4, 4)),
+        "K": (K, (3, 3)),
+    }
+    for name, (t, shape) in expected.items():
+        if not isinstance(t, Tensor):
+            raise RasterizeError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
+        if tuple(t.shape) != shape:
+            raise RasterizeError(f"{name} must have shape {list(shape)} (N = len(means)), got {list(t.shape)}")
+        if not t.is_floating_point():
+            raise RasterizeError(f"{name} must be a floating-point tensor, got {t.dtype}")
+        if t.device != means.device:
+            raise RasterizeError(f"{name} is on {t.device} but means is on {means.device}; use one device")
+    if int(width) <= 0 or int(height) <= 0:
+        raise RasterizeError(f"image size must be positive, got {width}x{height}")
+
+
+def project_gaussians(
+    means: Tensor,  # [N, 3] world
+    quats: Tensor,  # [N, 4] (w, x, y, z)
+    scales: Tensor,  # [N, 3] linear
+    T_cam_world: Tensor,  # [4, 4]
+    K: Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    near: float = 0.01,
+) -> Projected:
+    """EWA projection: ``Sigma2d = J W Sigma W^T J^T + 0.3 I`` with the 3DGS clamp of ``x/z``."""
+    dtype = means.dtype
+    T = T_cam_world.to(dtype)
+    Kd = K.to(dtype)
+    R_cw, t_cw = T[:3, :3], T[:3, 3]
+    p_cam = means @ R_cw.T + t_cw  # [N, 3]
+    x, y, z = p_cam.unbind(-1)
+    fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
+    in_front = z > near
+    z_safe = torch.where(in_front, z, torch.ones_like(z))
+    inv_z = 1.0 / z_safe
+    means2d = torch.stack([fx * x * inv_z + cx, fy * y * inv_z + cy], dim=-1)
+
+    # Jacobian of the perspective projection, with x/z and y/z clamped slightly beyond the image
+    # (as in 3DGS/gsplat) so that Gaussians far outside the view do not blow up.
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    lim_x_pos, lim_x_neg = (width - cx) / fx + 0.3 * tan_x, cx / fx + 0.3 * tan_x
+    lim_y_pos, lim_y_neg = (height - cy) / fy + 0.3 * tan_y, cy / fy + 0.3 * tan_y
+    tx = z_safe * torch.minimum(torch.maximum(x * inv_z, -lim_x_neg), lim_x_pos)
+    ty = z_safe * torch.minimum(torch.maximum(y * inv_z, -lim_y_neg), lim_y_pos)
+    zero = torch.zeros_like(z)
+    J = torch.stack(
+        [fx * inv_z, zero, -fx * tx * inv_z * inv_z, zero, fy * inv_z, -fy * ty * inv_z * inv_z], dim=-1
+    ).reshape(-1, 2, 3)
+
+    R_g = quat_to_rotmat(quats)  # [N, 3, 3] world <- gaussian
+    M = R_g * scales[:, None, :]  # R S
+    cov3d = M @ M.transpose(1, 2)  # [N, 3, 3] world
+    JW = J @ R_cw  # [N, 2, 3]
+    cov2d = JW @ cov3d @ JW.transpose(1, 2)
+    cov2d = cov2d + LOW_PASS * torch.eye(2, dtype=dtype, device=means.device)
+
+    a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
+    det = (a * c - b * b).clamp_min(1e-12)
+    conics = torch.stack([c / det, -b / det, a / det], dim=-1)
+
+    # shortest axis, rotated into the camera frame, flipped to face the camera
+    k = scales.detach().argmin(dim=-1)
+    n_world = torch.gather(R_g, 2, k[:, None, None].expand(-1, 3, 1)).squeeze(-1)  # [N, 3]
+    n_cam = n_world @ R_cw.T
+    facing = torch.where((n_cam * p_cam).sum(-1, keepdim=True).detach() > 0, -1.0, 1.0).to(dtype)
+    normals = n_cam * facing
+
+    with torch.no_grad():
+        mid = 0.5 * (a + c)
+        lam_max = mid + torch.sqrt((mid * mid - (a * c - b * b)).clamp_min(0.0))
+        radii = torch.ceil(SIGMA_CUTOFF * torch.sqrt(lam_max)).to(torch.int64)
+        u, v = means2d[:, 0], means2d[:, 1]
+        on_screen = (u + radii >= 0) & (u - radii <= width - 1) & (v + radii >= 0) & (v - radii <= height - 1)
+        visible = in_front & on_screen & torch.isfinite(u) & torch.isfinite(v)
+        radii = torch.where(visible, radii, torch.zeros_like(radii))
+    return Projected(means2d=means2d, cov2d=cov2d, conics=conics, depths=z, radii=radii, normals=normals)

@@ -1,0 +1,159 @@
+"""Microsoft 7-Scenes sequences (``seq-XX/frame-XXXXXX.color.png | .depth.png | .pose.txt``).
+
+Shotton et al., "Scene Coordinate Regression Forests for Camera Relocalization in RGB-D Images",
+CVPR 2013.
+
+- ``path``: a ``seq-XX`` folder, or the scene folder (e.g. ``chess/``) with ``sequence="seq-01"``
+  (or ``sequence=1``).
+- Frames: every ``frame-XXXXXX.color.png`` sorted by number; timestamps ``index / fps``
+  (``fps=30``, 7-Scenes has no timestamps).
+- Depth: ``frame-XXXXXX.depth.png`` in millimetres; 0 and 65535 are invalid (NaN). Note that the
+  Kinect depth of 7-Scenes is *not* registered to the colour camera (the original release says so);
+  this loader hands it out as is, at the colour resolution. ``with_depth=False`` skips it.
+- Intrinsics: fx=fy=585, cx=320, cy=240, 640x480 unless ``intrinsics=`` is given; no distortion.
+- Ground truth: ``frame-XXXXXX.pose.txt``, a 4x4 camera-to-world matrix ``T_world_cam``. Pose files
+  are read when :meth:`ground_truth` is first asked for (or per frame); a missing file or a
+  non-finite matrix gives ``None`` for that frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+
+from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.common import normalize_index
+from gsslam.datasets.image_io import read_color, read_depth
+from gsslam.types import CameraIntrinsics, Frame, Trajectory
+
+log = logging.getLogger(__name__)
+
+SEVEN_SCENES_INTRINSICS = CameraIntrinsics(585.0, 585.0, 320.0, 240.0, 640, 480)
+DEPTH_SCALE = 1000.0  # millimetres
+INVALID_DEPTH = (0, 65535)
+_FRAME_RE = re.compile(r"^frame-(\d+)\.color\.png$")
+
+
+class SevenScenesError(DatasetError):
+    """A 7-Scenes folder or one of its files is missing or malformed."""
+
+
+def read_pose_txt(path: Path) -> np.ndarray | None:  # -> [4, 4] or None when absent / not finite
+    if not path.is_file():
+        return None
+    try:
+        T = np.loadtxt(path, dtype=np.float64)
+    except ValueError:
+        raise SevenScenesError(f"{path}: expected a 4x4 matrix of numbers") from None
+    if T.shape != (4, 4):
+        raise SevenScenesError(f"{path}: expected a 4x4 matrix, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        return None
+    return T
+
+
+@register_dataset("7scenes")
+class SevenScenesDataset:
+    """One 7-Scenes sequence; see the module docstring for the kwargs."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        sequence: str | int | None = None,
+        fps: float = 30.0,
+        with_depth: bool = True,
+        intrinsics: CameraIntrinsics | None = None,
+    ) -> None:
+        seq_dir = Path(path)
+        if sequence is not None:
+            name = f"seq-{int(sequence):02d}" if str(sequence).isdigit() else str(sequence)
+            seq_dir = seq_dir / name
+        if not seq_dir.is_dir():
+            raise SevenScenesError(f"7-Scenes sequence folder does not exist: {seq_dir}")
+        numbered = []
+        for p in seq_dir.iterdir():
+            m = _FRAME_RE.match(p.name)
+            if m:
+                numbered.append((int(m.group(1)), p))
+        if not numbered:
+            hint = " (pass sequence='seq-01' for a scene folder)" if any(seq_dir.glob("seq-*")) else ""
+            raise SevenScenesError(f"no frame-XXXXXX.color.png in {seq_dir}; the sequence is empty{hint}")
+        numbered.sort()
+        self.root = seq_dir
+        self.name = f"{seq_dir.parent.name}_{seq_dir.name}"
+        self._numbers = [n for n, _ in numbered]
+        self._color = [p for _, p in numbered]
+        self._fps = float(fps)
+        self.intrinsics = intrinsics.undistorted() if intrinsics is not None else SEVEN_SCENES_INTRINSICS
+        if intrinsics is not None and intrinsics.has_distortion:
+            raise SevenScenesError("7-Scenes images are used as pinhole images; give intrinsics without distortion")
+        self.has_depth = bool(with_depth)
+        if with_depth:
+            missing = [p for p in self._color if not self._depth_path(p).is_file()]
+            if missing:
+                raise SevenScenesError(
+                    f"{len(missing)} depth files are missing, e.g. {self._depth_path(missing[0])}; "
+                    "restore them or pass with_depth=False"
+                )
+        self._gt: Trajectory | None = None
+        self._gt_loaded = False
+
+    @staticmethod
+    def _depth_path(color: Path) -> Path:
+        return color.with_name(color.name.replace(".color.png", ".depth.png"))
+
+    @staticmethod
+    def _pose_path(color: Path) -> Path:
+        return color.with_name(color.name.replace(".color.png", ".pose.txt"))
+
+    def __len__(self) -> int:
+        return len(self._color)
+
+    def timestamps(self) -> list[float]:
+        return [i / self._fps for i in range(len(self))]
+
+    def __getitem__(self, index: int) -> Frame:
+        i = normalize_index(index, len(self))
+        image = read_color(self._color[i])
+        h, w = image.shape[:2]
+        if (w, h) != (self.intrinsics.width, self.intrinsics.height):
+            raise SevenScenesError(
+                f"{self._color[i]} is {w}x{h} but the intrinsics are for "
+                f"{self.intrinsics.width}x{self.intrinsics.height}; pass matching intrinsics="
+            )
+        depth = None
+        if self.has_depth:
+            depth = read_depth(self._depth_path(self._color[i]), DEPTH_SCALE, INVALID_DEPTH)
+            if depth.shape != (h, w):
+                raise SevenScenesError(
+                    f"{self._depth_path(self._color[i])} is {depth.shape[1]}x{depth.shape[0]} but the colour "
+                    f"image is {w}x{h}; resize the depth to the colour resolution"
+                )
+        pose = read_pose_txt(self._pose_path(self._color[i]))
+        return Frame(i, i / self._fps, image, self.intrinsics, depth, pose)
+
+    def _load_gt(self) -> None:
+        if self._gt_loaded:
+            return
+        self._gt_loaded = True
+        times, poses, idx = [], [], []
+        for i, color in enumerate(self._color):
+            T = read_pose_txt(self._pose_path(color))
+            if T is not None:
+                times.append(i / self._fps)
+                poses.append(T)
+                idx.append(i)
+        if poses:
+            self._gt = Trajectory(np.array(times), np.stack(poses), meta={"frame_indices": idx, "source": str(self.root)})
+
+    def ground_truth(self) -> Trajectory | None:
+        self._load_gt()
+        return self._gt
+
+    def ground_truth_at_frames(self) -> Trajectory | None:
+        """Same as :meth:`ground_truth`: 7-Scenes has one pose per frame."""
+        return self.ground_truth()

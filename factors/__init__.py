@@ -1,1 +1,28 @@
-"""Custom GTSAM factors of gsslam: residuals with analytic Jacobians. Depends on gtsam and numpy only."""
+"""Custom GTSAM factors of gsslam: residuals with analytic Jacobians. Depends on gtsam and numpy only.
+
+Every ``make_*_factor`` returns a ``gtsam.CustomFactor`` whose Jacobians are in GTSAM's
+right-perturbation chart (see :mod:`factors._lie`); batched factors carry all points of one pair.
+See docs/factors.md for residuals, dimensions, frames and units.
+"""
+
+from factors._lie import to_gtsam, to_matrix
+from factors.depth_prior import make_depth_prior_factor
+from factors.errors import FactorInputError
+from factors.flow import make_flow_factor, mixture_weights
+from factors.points import make_point_factor
+from factors.scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
+from factors.submap_alignment import make_submap_alignment_factor
+
+__all__ = [
+    "FactorInputError",
+    "make_depth_prior_factor",
+    "make_flow_factor",
+    "make_point_factor",
+    "make_scale_factor",
+    "make_scale_prior_factor",
+    "make_submap_alignment_factor",
+    "median_depth_ratio",
+    "mixture_weights",
+    "to_gtsam",
+    "to_matrix",
+]

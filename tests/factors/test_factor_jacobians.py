@@ -1,0 +1,120 @@
+"""Every factor's analytic Jacobian against gtsam.utils.numerical_derivative, away from identity."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from factor_helpers import analytic_jacobians, numeric_jacobians, random_value
+from gtsam.symbol_shorthand import S
+
+from factors import (
+    make_depth_prior_factor,
+    make_flow_factor,
+    make_point_factor,
+    make_scale_factor,
+    make_scale_prior_factor,
+    make_submap_alignment_factor,
+)
+
+GROUPS = ["pose3", "sim3"]
+
+
+def _values(rng, group, n=2):
+    v = gtsam.Values()
+    for i in range(n):
+        v.insert(S(i), random_value(rng, group))
+    return v
+
+
+def _assert_jacobians(factor, values, atol=1e-5):
+    for Ja, Jn in zip(analytic_jacobians(factor, values), numeric_jacobians(factor, values)):
+        scale = max(1.0, np.abs(Jn).max())
+        np.testing.assert_allclose(Ja, Jn, atol=atol * scale)
+
+
+def _rigid(rng):
+    return gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-1, 1, 3)), rng.uniform(-1, 1, 3)).matrix()
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_alignment_jacobians(group):
+    rng = np.random.default_rng(1)
+    f = make_submap_alignment_factor(S(0), S(1), _rigid(rng), 0.01, 0.02, group)
+    _assert_jacobians(f, _values(rng, group))
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_point_jacobians(group):
+    rng = np.random.default_rng(2)
+    X_a, X_b = rng.normal(size=(20, 3)) * 3, rng.normal(size=(20, 3)) * 3
+    f = make_point_factor(S(0), S(1), X_a, X_b, rng.uniform(0.01, 0.1, 20), group)
+    _assert_jacobians(f, _values(rng, group))
+
+
+def _flow_case(rng, group, offsets):
+    """Values and a flow pair whose points are in front of both cameras (with some noise)."""
+    K = np.array([[500.0, 0, 320], [0, 480.0, 240], [0, 0, 1]])
+    values = gtsam.Values()
+    Ta = random_value(rng, group)
+    values.insert(S(0), Ta)
+    La = _rigid(rng) if offsets else np.eye(4)
+    Lb = _rigid(rng) if offsets else np.eye(4)
+    # camera b = camera a moved a little, so the points stay visible
+    from factors import to_gtsam, to_matrix
+
+    Ma = to_matrix(Ta) @ La
+    delta = gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-0.1, 0.1, 3)), rng.uniform(-0.3, 0.3, 3)).matrix()
+    Mb = Ma @ delta
+    Tb = Mb @ np.linalg.inv(Lb)
+    if group == "sim3":
+        Tb = Tb @ np.diag([1.3, 1.3, 1.3, 1.0])  # a different scale for b
+    values.insert(S(1), to_gtsam(Tb, group))
+    uv = rng.uniform([0, 0], [640, 480], (50, 2))
+    d = rng.uniform(2.0, 6.0, 50)
+    probe = make_flow_factor(S(0), S(1), uv, d, uv, K, group=group, L_a=La, L_b=Lb, robust=False)
+    proj = uv + probe.unwhitenedError(values).reshape(-1, 2)  # where the points really land in b
+    uv_t = proj + rng.normal(scale=1.0, size=(50, 2))
+    return values, uv, d, uv_t, K, La, Lb
+
+
+@pytest.mark.parametrize("group", GROUPS)
+@pytest.mark.parametrize("offsets", [False, True])
+def test_flow_jacobians(group, offsets):
+    rng = np.random.default_rng(3)
+    values, uv, d, uv_t, K, La, Lb = _flow_case(rng, group, offsets)
+    f = make_flow_factor(
+        S(0), S(1), uv, d, uv_t, K, 1.5, rng.uniform(0.2, 1, 50), group=group, L_a=La, L_b=Lb, robust=False
+    )
+    _assert_jacobians(f, values, atol=1e-4)
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_flow_robust_jacobian_is_irls_weighted(group):
+    """With robust weights, rows are the plain Jacobian scaled by sqrt(weight) of the current error."""
+    from factors import mixture_weights
+
+    rng = np.random.default_rng(4)
+    values, uv, d, uv_t, K, _, _ = _flow_case(rng, group, False)
+    uv_t[:10] += 80.0  # outliers
+    plain = make_flow_factor(S(0), S(1), uv, d, uv_t, K, 2.0, group=group, robust=False)
+    robust = make_flow_factor(
+        S(0), S(1), uv, d, uv_t, K, 2.0, group=group, inlier_prior=0.8, outlier_range_px=60.0
+    )
+    e = plain.whitenedError(values).reshape(-1, 2) * 2.0
+    w = mixture_weights(e, 2.0, 0.8, 60.0)
+    assert w[:10].max() < 1e-3 < 0.5 < np.median(w[10:])
+    for Jp, Jr in zip(analytic_jacobians(plain, values), analytic_jacobians(robust, values)):
+        np.testing.assert_allclose(Jr, Jp * np.repeat(np.sqrt(w), 2)[:, None], atol=1e-9)
+    np.testing.assert_allclose(
+        robust.whitenedError(values), plain.whitenedError(values) * np.repeat(np.sqrt(w), 2)
+    )
+
+
+def test_scale_factors_jacobians():
+    rng = np.random.default_rng(5)
+    values = _values(rng, "sim3")
+    _assert_jacobians(make_scale_factor(S(0), S(1), 0.3, 0.05), values)
+    _assert_jacobians(make_scale_prior_factor(S(1), 1.2, 0.01), values)
+    z = rng.uniform(1, 3, 30)
+    _assert_jacobians(make_depth_prior_factor(S(0), z, z * rng.uniform(0.8, 1.2, 30), 0.05), values)

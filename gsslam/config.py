@@ -100,6 +100,19 @@ class LoopConfig:
 
 
 @dataclass(frozen=True)
+class PipelineConfig:
+    track_points: int = 600  # flow matches per frame for tracking / PnP against the keyframe
+    min_photo_consistency: float = 0.5  # fraction of matches whose warped grey value agrees
+    min_pnp_inliers: int = 30
+    min_pnp_inlier_ratio: float = 0.25
+    pnp_threshold_px: float = 2.0
+    blank_std: float = 0.01  # a frame whose intensity std is below this is blank (skipped)
+    max_lost_frames: int = 2  # consecutive tracking failures that start a new submap chain
+    cross_flow_back: int = 3  # each new keyframe gets flow to keyframes this far back in the previous submap
+    flow_points: int = 1000  # correspondences per cross-submap keyframe pair
+
+
+@dataclass(frozen=True)
 class Config:
     mode: str = "mono"  # "mono" | "rgbd"
     flow: FlowConfig = field(default_factory=FlowConfig)
@@ -108,6 +121,7 @@ class Config:
     graph: GraphConfig = field(default_factory=GraphConfig)
     mapper: MapperConfig = field(default_factory=MapperConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     seed: int = 0
 
 

@@ -1,0 +1,313 @@
+"""The SLAM pipeline: SING3R submaps + GaussianFlow correspondences on one GTSAM graph.
+
+Per frame (:meth:`Pipeline.process`):
+
+1. **Track** the frame against the latest keyframe with one dense flow (``tracking.py``); blank
+   frames, failed flow and failed PnP are tracking-loss events.
+2. **Keyframe?** by flow magnitude (``frontend.keyframes``). A non-keyframe keeps its flow matches
+   to the keyframe; its pose is PnP against the keyframe's depth (sensor depth for RGB-D, the
+   submap's point map for mono) composed with the keyframe's optimised pose.
+3. Every K new keyframes: **encode a submap** (``frontend`` encoder; frame 0 is the previous
+   submap's last keyframe with its refined depth), **add it to the graph** (submap alignment,
+   scale drift, adjacency points), add **flow correspondences** between each new keyframe and
+   its predecessors in the previous submap, and run one **iSAM2 update**.
+4. At the end: encode the tail (fewer than K keyframes), **batch refinement**, poses for all frames.
+
+Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the current chain of
+submaps and starts a new one at the current frame (its own graph; its world placement is the
+last tracked pose). Outputs are written by :mod:`gsslam.run_outputs`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from gsslam.config import Config
+from gsslam.errors import GsslamError
+from gsslam.geometry import sim3_scale
+from gsslam.tracking import FrameMatches, FrameTracker, is_blank, sample_depth, solve_relative_pose
+from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
+
+log = logging.getLogger(__name__)
+
+
+class PipelineError(GsslamError):
+    """The pipeline was fed inconsistent frames (e.g. changing image size)."""
+
+
+@dataclass
+class Event:
+    frame_index: int
+    kind: str  # "blank" | "flow" | "pnp" | "new_chain" | "encoder" | ...
+    detail: str = ""
+
+
+@dataclass
+class _Keyframe:
+    chain: int
+    submap: int  # the submap whose point map gives this keyframe's depth
+    position: int  # index inside that submap's frame_indices
+    depth: np.ndarray  # [h, w] point-map depth (submap units)
+
+
+@dataclass
+class Chain:
+    """Consecutive submaps linked through shared keyframes, optimised in one graph."""
+
+    graph: object
+    T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world
+    encodings: list[SubmapEncoding] = field(default_factory=list)
+
+
+class Pipeline:
+    """Feeds frames through tracking, keyframes, submap encoding and the graph."""
+
+    def __init__(self, cfg: Config, intrinsics: CameraIntrinsics) -> None:
+        from gsslam.frontend.encoder import make_encoder
+        from gsslam.frontend.flow import make_flow_estimator
+        from gsslam.frontend.keyframes import KeyframeSelector
+
+        self.cfg = cfg
+        self.monocular = cfg.mode == "mono"
+        self.intrinsics = intrinsics
+        self.flow = make_flow_estimator(cfg.flow)
+        self.selector = KeyframeSelector(cfg.keyframes)
+        self.encoder = make_encoder(cfg.mode, cfg.encoder, self.flow)
+        pc = cfg.pipeline
+        self.tracker = FrameTracker(
+            self.flow, pc.track_points, pc.min_photo_consistency, pc.blank_std, use_depth=not self.monocular
+        )
+        self.rng = np.random.default_rng(cfg.seed)
+        self.chains: list[Chain] = []
+        self.events: list[Event] = []
+        self.timestamps: dict[int, float] = {}
+        self.keyframes: dict[int, _Keyframe] = {}
+        self.keyframe_order: list[int] = []
+        self.pending: list[tuple[FrameMatches, int]] = []  # (matches to ref keyframe, chain id), mono
+        self.relative: dict[int, tuple[int, np.ndarray]] = {}  # frame -> (ref keyframe, T_ref_cur), solved
+        self.window: list[Frame] = []  # keyframes of the submap being built; [0] is shared
+        self.prev_frames: list[Frame] = []  # keyframes of the last encoded submap
+        self.frames_since_kf = 0
+        self.lost = 0
+        self.last_good = None
+        self.last_pose: np.ndarray = np.eye(4)
+        self.n_frames = 0
+        self.n_flow_factors = 0
+        self.last_good: Frame | None = None  # last non-keyframe tracked successfully
+
+    # ---- per frame ---------------------------------------------------------------------------
+
+    def process(self, frame: Frame, retry: bool = False) -> None:
+        if (frame.intrinsics.width, frame.intrinsics.height) != (self.intrinsics.width, self.intrinsics.height):
+            raise PipelineError(f"frame {frame.index} has another image size than the sequence")
+        self.n_frames += 0 if retry else 1
+        if self.monocular and frame.depth is not None:
+            frame = dataclasses.replace(frame, depth=None)  # a monocular run never sees sensor depth
+        self.timestamps[frame.index] = frame.timestamp
+        if not self.window:
+            self._start_chain(frame)
+            return
+        flow, matches, status = self.tracker.track(frame)
+        T_ref_cur = None
+        if status.ok and not self.monocular:
+            depth = sample_depth(frame_depth(self.tracker.ref), self.intrinsics, self.intrinsics, matches.uv_ref)
+            pc = self.cfg.pipeline
+            T_ref_cur, _ = solve_relative_pose(
+                matches, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+            )
+            if T_ref_cur is None:
+                status.ok, status.reason = False, "pnp"
+        if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
+            # The keyframe is too far behind: promote the last tracked frame and try again.
+            self._promote(self.last_good)
+            self.process(frame, retry=True)
+            return
+        if not status.ok:
+            self._tracking_failure(frame, status.reason)
+            return
+        self.lost = 0
+        self.frames_since_kf += 1
+        if self.selector.is_keyframe(flow, self.frames_since_kf):
+            self._add_keyframe(frame)
+            return
+        if self.monocular:
+            self.pending.append((matches, len(self.chains) - 1))
+        else:
+            self.relative[frame.index] = (matches.ref_index, T_ref_cur)
+        self.last_good = frame
+
+    def _tracking_failure(self, frame: Frame, reason: str) -> None:
+        self.events.append(Event(frame.index, reason, f"tracking failed ({reason})"))
+        log.warning("frame %d: tracking failed (%s)", frame.index, reason)
+        if reason == "blank":
+            return  # the scene comes back where it left: keep the chain
+        self.lost += 1
+        if self.lost >= self.cfg.pipeline.max_lost_frames:
+            self._close_chain()
+            self.events.append(Event(frame.index, "new_chain", f"after {self.lost} lost frames"))
+            self._start_chain(frame)
+
+    def _start_chain(self, frame: Frame) -> None:
+        if is_blank(frame, self.cfg.pipeline.blank_std):
+            self.events.append(Event(frame.index, "blank", "no chain starts on a blank frame"))
+            return
+        from gsslam.graph.submap_graph import SubmapGraph
+
+        T = self.current_pose_estimate()
+        self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T))
+        self.window = [frame]
+        self.prev_frames = []
+        self.keyframe_order.append(frame.index)
+        self.tracker.set_reference(frame)
+        self.frames_since_kf = 0
+        self.lost = 0
+        self.last_good = None
+
+    def _promote(self, frame: Frame) -> None:
+        """Make an already tracked non-keyframe a keyframe (its tracked pose is dropped)."""
+        self.relative.pop(frame.index, None)
+        self.pending = [(m, c) for m, c in self.pending if m.cur_index != frame.index]
+        self.events.append(Event(frame.index, "promoted", "keyframe inserted after a tracking failure"))
+        self._add_keyframe(frame)
+
+    def _add_keyframe(self, frame: Frame) -> None:
+        self.last_good = None
+        self.window.append(frame)
+        self.keyframe_order.append(frame.index)
+        self.tracker.set_reference(frame)
+        self.frames_since_kf = 0
+        if len(self.window) == self.cfg.encoder.submap_size + 1:
+            self._encode_window()
+
+    # ---- submaps -----------------------------------------------------------------------------
+
+    def _encode_window(self) -> None:
+        chain = self.chains[-1]
+        frames = self.window
+        shared_depth = None
+        if chain.encodings and frames[0].index in self.keyframes:
+            shared_depth = self.keyframes[frames[0].index].depth
+        try:
+            enc = self.encoder.encode(frames, shared_depth=shared_depth)
+        except GsslamError as e:
+            self.events.append(Event(frames[-1].index, "encoder", str(e)))
+            log.warning("submap encoding failed: %s", e)
+            self.window = [frames[-1]]
+            return
+        sid = chain.graph.add_submap(enc)
+        chain.encodings.append(enc)
+        cid = len(self.chains) - 1
+        for pos, idx in enumerate(enc.frame_indices):
+            if pos == 0 and idx in self.keyframes:
+                continue  # the shared frame keeps the depth of the submap it was made in
+            self.keyframes[idx] = _Keyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
+        self._add_cross_flow(chain, frames)
+        chain.graph.update()
+        self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
+        self.prev_frames = frames
+        self.window = [frames[-1]]
+
+    def _add_cross_flow(self, chain: Chain, frames: list[Frame]) -> None:
+        """GaussianFlow: flow matches between new keyframes and their predecessors in the previous submap."""
+        if not self.prev_frames:
+            return
+        try:
+            from gsslam.frontend.correspondences import correspondences_from_flow
+        except ImportError:  # frontend without flow correspondences: submaps chain through shared frames only
+            log.warning("gsslam.frontend.correspondences is missing: no cross-submap flow factors")
+            return
+        from gsslam.frontend.flow import forward_backward_mask
+
+        sequence = self.prev_frames + frames[1:]  # keyframes in order; prev_frames[-1] is shared
+        first_new = len(self.prev_frames)
+        back = self.cfg.pipeline.cross_flow_back
+        for b in range(first_new, len(sequence)):
+            for a in range(max(0, b - back), first_new):
+                src, tgt = sequence[a], sequence[b]
+                fw = self.flow(src.image, tgt.image)
+                bw = self.flow(tgt.image, src.image)
+                valid = forward_backward_mask(fw, bw, self.cfg.flow.fb_threshold_px)
+                kf = self.keyframes[src.index]
+                depth = cv2.resize(kf.depth, (self.intrinsics.width, self.intrinsics.height),
+                                   interpolation=cv2.INTER_NEAREST)
+                corr = correspondences_from_flow(src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng)
+                if len(corr) >= 10 and chain.graph.add_flow(corr, self.intrinsics.K) is not None:
+                    self.n_flow_factors += 1
+
+    def _close_chain(self) -> None:
+        if len(self.window) > 1:
+            self._encode_window()
+        self.window = []
+
+    def finish(self) -> None:
+        """Encode the tail, batch-refine every chain's graph."""
+        self._close_chain()
+        if self.cfg.graph.final_batch_refinement:
+            for chain in self.chains:
+                if chain.encodings:
+                    chain.graph.refine_batch()
+
+    # ---- poses -------------------------------------------------------------------------------
+
+    def keyframe_poses(self) -> dict[int, np.ndarray]:
+        """``T_world_cam`` [4, 4] of every keyframe the graphs know (current estimates)."""
+        out = {}
+        for idx, kf in self.keyframes.items():
+            chain = self.chains[kf.chain]
+            out[idx] = chain.T_world_chain @ chain.graph.keyframe_pose(idx)
+        for chain in self.chains:  # a chain that never got a submap: its origin keyframe only
+            if not chain.encodings and self.window and chain is self.chains[-1]:
+                out.setdefault(self.window[0].index, chain.T_world_chain.copy())
+        return out
+
+    def frame_poses(self) -> dict[int, np.ndarray]:
+        """``T_world_cam`` of every frame that has one: keyframes, then non-keyframes via their keyframe."""
+        kf_poses = self.keyframe_poses()
+        out = dict(kf_poses)
+        for idx, (ref, T_ref_cur) in self.relative.items():
+            if ref in kf_poses:
+                out[idx] = kf_poses[ref] @ self._to_world_units(ref, T_ref_cur)
+        pc = self.cfg.pipeline
+        for m, _cid in self.pending:
+            if m.ref_index not in kf_poses or m.ref_index not in self.keyframes:
+                continue
+            kf = self.keyframes[m.ref_index]
+            intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
+            depth = sample_depth(kf.depth, intr, self.intrinsics, m.uv_ref)
+            T, _ = solve_relative_pose(m, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio,
+                                       pc.pnp_threshold_px)
+            if T is not None:
+                out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
+        return dict(sorted(out.items()))
+
+    def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
+        """Scale a relative pose measured in the keyframe's submap units to world units."""
+        kf = self.keyframes.get(ref)
+        if kf is None or not self.monocular:
+            return T_ref_cur
+        s = sim3_scale(self.chains[kf.chain].graph.submap_pose(kf.submap))
+        T = T_ref_cur.copy()
+        T[:3, 3] *= s
+        return T
+
+    def current_pose_estimate(self) -> np.ndarray:
+        """Best guess of the latest camera pose (where a new chain is placed)."""
+        return self.last_pose.copy()
+
+
+def frame_depth(frame: Frame | None) -> np.ndarray:
+    if frame is None or frame.depth is None:
+        raise PipelineError("RGB-D mode needs depth images; use --mode mono for this dataset")
+    return frame.depth
+
+
+def run_sequence(path, dataset_name, cfg, out, max_frames=None, progress=True, **dataset_kwargs):
+    """Run a whole sequence and write its outputs; see :func:`gsslam.run_outputs.run_sequence`."""
+    from gsslam.run_outputs import run_sequence as _run
+
+    return _run(path, dataset_name, cfg, out, max_frames=max_frames, progress=progress, **dataset_kwargs)

@@ -1,0 +1,174 @@
+"""Frame tracking against the latest keyframe: flow matches, PnP, health checks.
+
+Every incoming frame is matched to the current reference keyframe with one dense flow
+(``flow(ref, frame)``); the same flow drives keyframe selection. Non-keyframes get their pose
+relative to the reference keyframe by PnP on those matches, lifted to 3D with the keyframe's
+depth: the sensor depth in an RGB-D run (solved at once), or the keyframe's point-map depth
+from its submap encoding in a monocular run (solved when that submap is encoded; the
+translation is then in the submap's units and is scaled to world units by the pipeline).
+
+Health checks on every frame: a blank image (almost no intensity variation), a flow whose
+warped colours do not match (a jump, a cut, a flow failure), or a PnP with too few inliers are
+reported as tracking loss; the pipeline records the event and starts a new submap chain.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from gsslam.errors import GsslamError
+from gsslam.types import CameraIntrinsics, Frame
+
+log = logging.getLogger(__name__)
+
+
+class TrackingError(GsslamError):
+    """Tracking inputs are inconsistent (e.g. sizes of a frame and its keyframe differ)."""
+
+
+@dataclass
+class FrameMatches:
+    """Flow matches from a reference keyframe to a frame: ``uv_ref``, ``uv_cur`` [N, 2] full-res pixels."""
+
+    ref_index: int
+    cur_index: int
+    uv_ref: np.ndarray
+    uv_cur: np.ndarray
+
+
+@dataclass
+class TrackStatus:
+    ok: bool
+    reason: str = ""  # "blank" | "flow" | "pnp" when not ok
+    photo_consistency: float = 1.0  # fraction of matches whose warped colour agrees
+    median_flow_px: float = 0.0
+
+
+def is_blank(frame: Frame, min_std: float) -> bool:
+    """A frame with almost no intensity variation (black, white, lens cap)."""
+    g = frame.gray[::4, ::4]
+    return float(np.std(g)) < min_std
+
+
+def sample_matches(
+    ref: Frame,
+    cur: Frame,
+    flow: np.ndarray,  # [H, W, 2] ref -> cur
+    n_points: int,
+    depth_ref: np.ndarray | None = None,  # [H, W]; when given, only pixels with valid depth
+    border: int = 8,
+) -> FrameMatches:
+    """Matches on a regular grid of ``ref`` pixels whose flow target lands inside ``cur``."""
+    h, w = flow.shape[:2]
+    step = max(2, int(np.sqrt((h - 2 * border) * (w - 2 * border) / max(n_points, 1))))
+    vv, uu = np.mgrid[border : h - border : step, border : w - border : step]
+    uu, vv = uu.ravel(), vv.ravel()
+    keep = np.ones(len(uu), bool)
+    if depth_ref is not None:
+        d = depth_ref[vv, uu]
+        keep &= np.isfinite(d) & (d > 0)
+    f = flow[vv, uu]
+    tu, tv = uu + f[:, 0], vv + f[:, 1]
+    keep &= (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1) & np.all(np.isfinite(f), axis=1)
+    uv_ref = np.stack([uu[keep], vv[keep]], axis=1).astype(np.float64)
+    uv_cur = np.stack([tu[keep], tv[keep]], axis=1).astype(np.float64)
+    return FrameMatches(ref.index, cur.index, uv_ref, uv_cur)
+
+
+def photo_consistency(ref: Frame, cur: Frame, m: FrameMatches, threshold: float = 0.08) -> float:
+    """Fraction of matches whose grey value in ``cur`` (bilinear at uv_cur) agrees with ``ref``."""
+    if len(m.uv_ref) == 0:
+        return 0.0
+    g_ref, g_cur = ref.gray, cur.gray
+    a = g_ref[m.uv_ref[:, 1].astype(int), m.uv_ref[:, 0].astype(int)]
+    b = cv2.remap(
+        g_cur, m.uv_cur[:, 0].astype(np.float32).reshape(-1, 1), m.uv_cur[:, 1].astype(np.float32).reshape(-1, 1),
+        cv2.INTER_LINEAR,
+    ).ravel()
+    return float(np.mean(np.abs(a - b) < threshold))
+
+
+def sample_depth(
+    depth: np.ndarray,  # [h, w] at the resolution of ``depth_intrinsics``
+    depth_intrinsics: CameraIntrinsics,
+    full: CameraIntrinsics,
+    uv: np.ndarray,  # [N, 2] full-resolution pixels
+) -> np.ndarray:  # [N] (NaN where unknown)
+    """Nearest-neighbour depth lookup of full-resolution pixels in a (possibly smaller) depth map."""
+    sx, sy = depth_intrinsics.width / full.width, depth_intrinsics.height / full.height
+    u = np.clip(np.round((uv[:, 0] + 0.5) * sx - 0.5).astype(int), 0, depth.shape[1] - 1)
+    v = np.clip(np.round((uv[:, 1] + 0.5) * sy - 0.5).astype(int), 0, depth.shape[0] - 1)
+    d = depth[v, u].astype(np.float64)
+    d[~(d > 0)] = np.nan
+    return d
+
+
+def solve_relative_pose(
+    m: FrameMatches,
+    depth_ref: np.ndarray,  # [N] depth (z) of uv_ref in the reference camera, NaN unknown
+    K: np.ndarray,  # [3, 3]
+    min_inliers: int,
+    min_inlier_ratio: float,
+    threshold_px: float = 2.0,
+) -> tuple[np.ndarray | None, int]:
+    """``T_ref_cur`` [4, 4] by PnP RANSAC + LM refinement, or ``(None, inliers)`` when unreliable."""
+    ok = np.isfinite(depth_ref) & (depth_ref > 0)
+    if ok.sum() < max(min_inliers, 6):
+        return None, 0
+    uv_ref, uv_cur, z = m.uv_ref[ok], m.uv_cur[ok], depth_ref[ok]
+    X = np.stack([(uv_ref[:, 0] - K[0, 2]) / K[0, 0] * z, (uv_ref[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    found, rvec, tvec, inl = cv2.solvePnPRansac(
+        X, uv_cur, K, None, iterationsCount=100, reprojectionError=threshold_px, confidence=0.999,
+        flags=cv2.SOLVEPNP_EPNP,
+    )
+    n_in = 0 if inl is None else len(inl)
+    if not found or n_in < min_inliers or n_in < min_inlier_ratio * len(X):
+        return None, n_in
+    idx = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(X[idx], uv_cur[idx], K, None, rvec, tvec)
+    R_cur_ref, _ = cv2.Rodrigues(rvec)
+    T_cur_ref = np.eye(4)
+    T_cur_ref[:3, :3] = R_cur_ref
+    T_cur_ref[:3, 3] = tvec.ravel()
+    T_ref_cur = np.eye(4)
+    T_ref_cur[:3, :3] = R_cur_ref.T
+    T_ref_cur[:3, 3] = -R_cur_ref.T @ tvec.ravel()
+    return T_ref_cur, n_in
+
+
+class FrameTracker:
+    """Matches each frame to the current reference keyframe and checks tracking health."""
+
+    def __init__(
+        self, flow, n_points: int, min_photo_consistency: float, blank_std: float, use_depth: bool = True
+    ) -> None:
+        self.flow = flow
+        self.use_depth = use_depth
+        self.n_points = n_points
+        self.min_photo_consistency = min_photo_consistency
+        self.blank_std = blank_std
+        self.ref: Frame | None = None
+
+    def set_reference(self, frame: Frame) -> None:
+        self.ref = frame
+
+    def track(self, frame: Frame) -> tuple[np.ndarray | None, FrameMatches | None, TrackStatus]:
+        """-> (flow ref->frame [H, W, 2], matches, status). Needs a reference keyframe."""
+        if self.ref is None:
+            raise TrackingError("no reference keyframe: call set_reference first")
+        if frame.image.shape != self.ref.image.shape:
+            raise TrackingError(f"frame {frame.index} is {frame.image.shape}, keyframe is {self.ref.image.shape}")
+        if is_blank(frame, self.blank_std):
+            return None, None, TrackStatus(False, "blank")
+        flow = self.flow(self.ref.image, frame.image)
+        depth = self.ref.depth if self.use_depth else None
+        m = sample_matches(self.ref, frame, flow, self.n_points, depth_ref=depth)
+        pc = photo_consistency(self.ref, frame, m)
+        med = float(np.median(np.linalg.norm(flow[::8, ::8], axis=-1)))
+        if pc < self.min_photo_consistency or len(m.uv_ref) < 20:
+            return flow, m, TrackStatus(False, "flow", pc, med)
+        return flow, m, TrackStatus(True, "", pc, med)

@@ -28,7 +28,7 @@ class FlowConfig:
     method: str = "dis"  # "dis" | "farneback"
     dis_preset: str = "medium"  # "ultrafast" | "fast" | "medium"
     max_side: int = 320  # flow is computed on images downscaled so that max(H, W) <= this
-    fb_threshold_px: float = 1.0  # forward-backward consistency threshold, at flow resolution
+    fb_threshold_px: float = 2.0  # forward-backward consistency threshold, in full-resolution pixels
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,10 @@ class EncoderConfig:
     ransac_threshold_px: float = 1.0
     min_depth: float = 0.1
     max_depth: float = 10.0
+    pointmap_max_side: int = 320  # point maps / local estimation at max(H, W) <= this (TUM -> 320x240)
+    min_inliers: int = 30  # PnP / essential-matrix inliers below this: the estimate is not trusted
+    rgbd_odometry: bool = True  # refine RGB-D poses with open3d's hybrid (photometric + depth) odometry
+    odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
 
 
 @dataclass(frozen=True)

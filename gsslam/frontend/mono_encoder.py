@@ -1,0 +1,244 @@
+"""Monocular submap encoder: classical structure from motion on dense flow tracks.
+
+At point-map resolution, for K+1 keyframes with frame 0 shared with the previous submap:
+
+1. Tracks from frame 0: flows between consecutive keyframes are chained (0 -> i) and checked
+   forward-backward against the chained backward flows; only textured pixels are used.
+2. Two-view initialisation: essential matrix (RANSAC) + recoverPose between frame 0 and the
+   farthest frame with good geometry, checked triangulation (cheirality, reprojection, parallax)
+   and homography-vs-essential model selection (:func:`gsslam.frontend.two_view.two_view_pose`).
+3. One scale for the submap: with ``shared_depth`` the median ratio shared/triangulated depth
+   (so the scale chains across submaps); without, median frame-0 depth = 1.
+4. PnP RANSAC + LM for the other frames against the triangulated frame-0 points, then a small
+   bundle adjustment of all poses and frame-0 inverse depths.
+5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
+   baseline; confidence grows with the parallax angle.
+
+Low parallax / pure rotation (or no texture): no triangulation. With ``shared_depth`` the
+poses come from PnP against the shared frame's depth and depths are propagated from it
+(confidence 0.5); without it, rotations come from homographies, translations are zero and the
+point maps are empty (confidence 0). ``meta["degenerate"]`` and ``meta["reason"]`` say which.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from gsslam.config import EncoderConfig
+from gsslam.frontend.encoder import (
+    check_frames,
+    pointmap_intrinsics,
+    register_encoder,
+    resize_depth,
+    resize_image,
+    robust_depth_stats,
+)
+from gsslam.frontend.flow import FlowEstimator, compose_flows, forward_backward_mask, textured_mask
+from gsslam.frontend.pose_estimation import pnp, sample_matches
+from gsslam.frontend.two_view import bundle_adjust, rotation_from_homography, triangulate_rays, two_view_pose
+from gsslam.geometry import backproject, depth_to_points, invert_T
+from gsslam.types import Frame, SubmapEncoding
+
+log = logging.getLogger(__name__)
+
+FB_THRESHOLD_PX = 1.0  # point-map resolution
+PROPAGATED_CONFIDENCE = 0.5
+
+
+class MonoEncoder:
+    """Sub-track encoder for colour-only input; units: the previous submap's (or median depth 1)."""
+
+    def __init__(self, cfg: EncoderConfig, flow: FlowEstimator, seed: int = 0) -> None:
+        self.cfg = cfg
+        self.flow = flow
+        self.rng = np.random.default_rng(seed)
+
+    # -- tracks -------------------------------------------------------------------------------
+    def _tracks(self, imgs):
+        """Chained flows 0 -> i and i -> 0 and their validity masks (index 0 unused)."""
+        n = len(imgs)
+        tex = textured_mask(imgs[0])
+        fw, bw, valid = [None] * n, [None] * n, [None] * n
+        for i in range(1, n):
+            f = self.flow(imgs[i - 1], imgs[i])
+            b = self.flow(imgs[i], imgs[i - 1])
+            fw[i] = f if i == 1 else compose_flows(fw[i - 1], f)
+            bw[i] = b if i == 1 else compose_flows(b, bw[i - 1])
+            valid[i] = forward_backward_mask(np.nan_to_num(fw[i], nan=1e6), np.nan_to_num(bw[i], nan=1e6),
+                                             FB_THRESHOLD_PX, relative=0.01) & tex
+        return fw, bw, valid
+
+    # -- main ---------------------------------------------------------------------------------
+    def encode(
+        self,
+        frames: list[Frame],
+        shared_depth: np.ndarray | None = None,  # [H, W] or [h, w], previous submap units
+        shared_pose_hint: np.ndarray | None = None,
+    ) -> SubmapEncoding:
+        check_frames(frames, need_depth=False)
+        cfg = self.cfg
+        intr = pointmap_intrinsics(frames[0].intrinsics, cfg.pointmap_max_side)
+        K = intr.K
+        n = len(frames)
+        imgs = [resize_image(f.image, intr) for f in frames]
+        sd = None
+        if shared_depth is not None:
+            sd = resize_depth(np.asarray(shared_depth, dtype=np.float32), intr)
+            with np.errstate(invalid="ignore"):
+                sd[~(sd > 0)] = np.nan
+        fw, bw, valid = self._tracks(imgs)
+        meta: dict = {"degenerate": False, "reason": "ok", "pnp_failed": [], "scale_source": "median_depth"}
+
+        # two-view initialisation against the farthest usable frame
+        tv, ref = None, None
+        for r in range(n - 1, 0, -1):
+            uv0, uvr, _ = sample_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
+            res = two_view_pose(K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg)
+            meta.setdefault("two_view", []).append(
+                {"frame": r, "reason": res.reason, "parallax_deg": res.median_parallax_deg,
+                 "essential_inliers": res.essential_inliers, "homography_inliers": res.homography_inliers})
+            if res.T_b_a is not None:
+                tv, ref = res, r
+                break
+        if tv is None:
+            return self._degenerate(frames, imgs, fw, bw, valid, sd, intr, meta)
+
+        # one scale for the submap
+        X0, uv0 = tv.X_a, tv.uv_a
+        s = 1.0 / float(np.median(X0[:, 2]))
+        if sd is not None:
+            ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
+            zs = sd[ui[:, 1], ui[:, 0]]
+            ok = np.isfinite(zs)
+            if ok.sum() >= cfg.min_inliers:
+                s = float(np.median(zs[ok] / X0[ok, 2]))
+                meta["scale_source"] = "shared_depth"
+        X0 = X0 * s
+        T_i_0 = np.tile(np.eye(4), (n, 1, 1))
+        T_i_0[ref] = tv.T_b_a
+        T_i_0[ref, :3, 3] *= s
+
+        # PnP for the other frames: frame-0 track points into frame i via the chained flow
+        for i in range(1, n):
+            if i == ref:
+                continue
+            fl = fw[i].reshape(-1, 2)
+            ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
+            lin = ui[:, 1] * intr.width + ui[:, 0]
+            ok = valid[i].reshape(-1)[lin]
+            res = pnp(X0[ok], uv0[ok] + fl[lin[ok]], K, 2.0 * cfg.ransac_threshold_px, cfg.min_inliers)
+            if res.T_tgt_src is None:
+                meta["pnp_failed"].append(i)
+                T_i_0[i] = T_i_0[i - 1]
+                log.warning("mono encoder: PnP failed for keyframe %d (%d inliers); copying the previous pose",
+                            frames[i].index, res.inliers)
+            else:
+                T_i_0[i] = res.T_tgt_src
+
+        # bundle adjustment over the frame-0 tracks seen in every frame where they are valid
+        obs = np.full((n, len(uv0), 2), np.nan)
+        ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
+        lin = ui[:, 1] * intr.width + ui[:, 0]
+        for i in range(1, n):
+            ok = valid[i].reshape(-1)[lin]
+            obs[i, ok] = uv0[ok] + fw[i].reshape(-1, 2)[lin[ok]]
+        med_before = float(np.median(X0[:, 2]))
+        T_i_0, rho = bundle_adjust(K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px)
+        g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
+        T_i_0[:, :3, 3] *= g
+        T_local = np.stack([invert_T(T) for T in T_i_0])
+
+        points, conf = self._dense_depth(imgs, fw, bw, valid, T_local, intr)
+        if sd is not None:  # fill frame 0 from the shared depth where triangulation had nothing
+            fill = ~np.isfinite(points[0, ..., 2]) & np.isfinite(sd)
+            points[0][fill] = depth_to_points(K, sd)[fill]
+            conf[0][fill] = PROPAGATED_CONFIDENCE
+        meta.update(reference_frame=ref, scale=s * g, parallax_deg=tv.median_parallax_deg,
+                    depth_stats=[robust_depth_stats(p[..., 2]) for p in points], support_points=len(X0))
+        return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
+
+    # -- dense depth --------------------------------------------------------------------------
+    def _dense_depth(self, imgs, fw, bw, valid, T_local, intr):
+        """Per-frame depth from two-ray triangulation against the widest-baseline partner."""
+        n, (h, w) = len(imgs), imgs[0].shape[:2]
+        K = intr.K
+        centers = T_local[:, :3, 3]
+        uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1).reshape(-1, 2).astype(np.float64)
+        points = np.full((n, h, w, 3), np.nan, np.float32)
+        conf = np.zeros((n, h, w), np.float32)
+        for i in range(n):
+            j = int(np.argmax(np.linalg.norm(centers - centers[i], axis=1)))
+            if i == 0:
+                f_ij, ok = fw[j], valid[j]
+            elif j == 0:
+                f_ij = bw[i]
+                ok = forward_backward_mask(np.nan_to_num(bw[i], nan=1e6), np.nan_to_num(fw[i], nan=1e6),
+                                           FB_THRESHOLD_PX, relative=0.01) & textured_mask(imgs[i])
+            else:
+                init = compose_flows(bw[i], fw[j])
+                f_ij = self.flow(imgs[i], imgs[j], init=np.nan_to_num(init))
+                f_ji = self.flow(imgs[j], imgs[i], init=np.nan_to_num(compose_flows(bw[j], fw[i])))
+                ok = forward_backward_mask(f_ij, f_ji, FB_THRESHOLD_PX, relative=0.01) & textured_mask(imgs[i])
+            T_j_i = invert_T(T_local[j]) @ T_local[i]
+            X, par, err = triangulate_rays(K, uv, uv + np.nan_to_num(f_ij.reshape(-1, 2)), T_j_i)
+            good = (ok.reshape(-1) & np.isfinite(X).all(1) & (err < 2.0 * self.cfg.ransac_threshold_px)
+                    & (par > 0.5 * self.cfg.min_parallax_deg))
+            X[~good] = np.nan
+            points[i] = X.reshape(h, w, 3)
+            conf[i] = np.where(good, np.clip(par / (4.0 * self.cfg.min_parallax_deg), 0.0, 1.0), 0.0).reshape(h, w)
+        return points, conf
+
+    # -- low parallax / rotation / no texture -------------------------------------------------
+    def _degenerate(self, frames, imgs, fw, bw, valid, sd, intr, meta) -> SubmapEncoding:
+        n, (h, w), K = len(frames), imgs[0].shape[:2], intr.K
+        meta["degenerate"] = True
+        T_local = np.tile(np.eye(4), (n, 1, 1))
+        points = np.full((n, h, w, 3), np.nan, np.float32)
+        conf = np.zeros((n, h, w), np.float32)
+        n_valid = [int(v.sum()) for v in valid[1:]]
+        if max(n_valid, default=0) < self.cfg.min_inliers:
+            meta["reason"] = "no_texture"
+            log.warning("mono encoder: keyframes %s have no trackable texture; identity poses, empty point "
+                        "maps", [f.index for f in frames])
+            return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
+        if sd is not None and np.isfinite(sd).sum() >= self.cfg.min_inliers:
+            meta["reason"] = "low_parallax_shared_depth"
+            meta["scale_source"] = "shared_depth"
+            P0 = depth_to_points(K, sd)
+            points[0], conf[0] = P0, np.where(np.isfinite(sd), PROPAGATED_CONFIDENCE, 0.0)
+            for i in range(1, n):
+                uv0, uvi, z = sample_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
+                res = pnp(backproject(K, uv0, z), uvi, K, 2.0 * self.cfg.ransac_threshold_px, self.cfg.min_inliers)
+                if res.T_tgt_src is None:
+                    meta["pnp_failed"].append(i)
+                    T_local[i] = T_local[i - 1]
+                    continue
+                T_local[i] = invert_T(res.T_tgt_src)
+                # propagate: pixel of i -> its frame-0 match (backward chain) -> shared point -> frame i
+                tgt = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1) + np.nan_to_num(bw[i], nan=-1e6)
+                ti = np.round(tgt).astype(int)
+                inside = (ti[..., 0] >= 0) & (ti[..., 0] < w) & (ti[..., 1] >= 0) & (ti[..., 1] < h)
+                X0 = np.full((h, w, 3), np.nan)
+                X0[inside] = P0[ti[inside][:, 1], ti[inside][:, 0]]
+                Xi = X0.reshape(-1, 3) @ res.T_tgt_src[:3, :3].T + res.T_tgt_src[:3, 3]
+                points[i] = Xi.reshape(h, w, 3)
+                conf[i] = np.where(np.isfinite(points[i, ..., 2]), PROPAGATED_CONFIDENCE, 0.0)
+        else:
+            meta["reason"] = "low_parallax_rotation_only"
+            for i in range(1, n):
+                uv0, uvi, _ = sample_matches(fw[i], valid[i], None, self.cfg.max_points_per_frame, self.rng)
+                R = rotation_from_homography(K, uv0, uvi)
+                if R is None:
+                    meta["pnp_failed"].append(i)
+                    T_local[i] = T_local[i - 1]
+                else:
+                    T_local[i, :3, :3] = R.T
+        log.warning("mono encoder: no reliable two-view geometry in keyframes %s (%s)",
+                    [f.index for f in frames], meta["reason"])
+        meta["depth_stats"] = [robust_depth_stats(p[..., 2]) for p in points]
+        return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
+
+
+register_encoder("mono", lambda cfg, flow: MonoEncoder(cfg, flow))

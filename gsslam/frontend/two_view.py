@@ -1,0 +1,197 @@
+"""Two-view and few-view geometry for the monocular encoder: relative pose, triangulation,
+model selection, dense two-view depth and a small bundle adjustment.
+
+Poses are ``T_b_a`` (points of camera a into camera b); pixels are at the encoder's point-map
+resolution; one intrinsics matrix ``K`` for all views.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from gsslam.geometry import invert_T
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TwoViewResult:
+    T_b_a: np.ndarray | None  # [4, 4], |t| = 1 (scale unknown), None when rejected
+    X_a: np.ndarray  # [M, 3] triangulated points in camera a (same arbitrary scale)
+    uv_a: np.ndarray  # [M, 2] their pixels in a
+    median_parallax_deg: float
+    essential_inliers: int
+    homography_inliers: int
+    reason: str  # "ok" or why the geometry was rejected
+
+
+def rays(K: np.ndarray, uv: np.ndarray) -> np.ndarray:  # [N, 2] -> [N, 3] normalized (z = 1)
+    x = (uv[:, 0] - K[0, 2]) / K[0, 0]
+    y = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    return np.stack([x, y, np.ones_like(x)], axis=1)
+
+
+def triangulate_rays(
+    K: np.ndarray,
+    uv_a: np.ndarray,  # [N, 2]
+    uv_b: np.ndarray,  # [N, 2]
+    T_b_a: np.ndarray,  # [4, 4]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Midpoint triangulation: (X_a [N, 3], parallax deg [N], max reprojection error px [N]).
+
+    Points behind either camera get NaN coordinates.
+    """
+    T_a_b = invert_T(T_b_a)
+    da = rays(K, uv_a)
+    db = rays(K, uv_b) @ T_a_b[:3, :3].T  # ray directions of b, in frame a
+    c = T_a_b[:3, 3]  # centre of b in frame a
+    # solve a * da - b * db = c in least squares, per point (2x2 normal equations)
+    A11 = np.sum(da * da, 1)
+    A12 = -np.sum(da * db, 1)
+    A22 = np.sum(db * db, 1)
+    r1, r2 = np.sum(da * c, 1), -np.sum(db * c, 1)
+    det = A11 * A22 - A12 * A12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sa = (A22 * r1 - A12 * r2) / det
+        sb = (A11 * r2 - A12 * r1) / det
+        X = 0.5 * (sa[:, None] * da + (c + sb[:, None] * db))
+        cosang = np.sum(da * db, 1) / np.sqrt(A11 * A22)
+    par = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    bad = ~(sa > 0) | ~(sb > 0) | ~np.isfinite(det) | (np.abs(det) < 1e-15)
+    X[bad] = np.nan
+    err = np.maximum(_reproj_err(K, X, uv_a, np.eye(4)), _reproj_err(K, X, uv_b, T_b_a))
+    return X, par, err
+
+
+def _reproj_err(K: np.ndarray, X_a: np.ndarray, uv: np.ndarray, T_c_a: np.ndarray) -> np.ndarray:
+    Xc = X_a @ T_c_a[:3, :3].T + T_c_a[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * Xc[:, 0] / Xc[:, 2] + K[0, 2]
+        v = K[1, 1] * Xc[:, 1] / Xc[:, 2] + K[1, 2]
+        e = np.hypot(u - uv[:, 0], v - uv[:, 1])
+    e[~(Xc[:, 2] > 0)] = np.inf
+    return np.nan_to_num(e, nan=np.inf)
+
+
+def two_view_pose(
+    K: np.ndarray,
+    uv_a: np.ndarray,  # [N, 2]
+    uv_b: np.ndarray,  # [N, 2]
+    threshold_px: float,
+    min_inliers: int,
+    min_parallax_deg: float,
+) -> TwoViewResult:
+    """Essential matrix (RANSAC) + recoverPose + checked triangulation, with model selection.
+
+    Rejected (``T_b_a = None``) when there are too few matches or inliers, when the median
+    parallax of the triangulated inliers is below ``min_parallax_deg`` (pure rotation / tiny
+    baseline), or when a homography explains the matches as well as the essential matrix *and*
+    the parallax is small (the two-view geometry is then not determined).
+    """
+    empty = np.zeros((0, 3)), np.zeros((0, 2))
+    if len(uv_a) < max(8, min_inliers):
+        return TwoViewResult(None, *empty, 0.0, 0, 0, f"too few matches ({len(uv_a)})")
+    pa, pb = uv_a.astype(np.float64), uv_b.astype(np.float64)
+    E, mask_e = cv2.findEssentialMat(pa, pb, K, cv2.RANSAC, 0.999, threshold_px)
+    H, mask_h = cv2.findHomography(pa, pb, cv2.RANSAC, 2.0 * threshold_px)
+    n_h = int(mask_h.sum()) if mask_h is not None else 0
+    if E is None or E.shape != (3, 3) or mask_e is None:
+        return TwoViewResult(None, *empty, 0.0, 0, n_h, "essential matrix estimation failed")
+    n_e = int(mask_e.sum())
+    if n_e < min_inliers:
+        return TwoViewResult(None, *empty, 0.0, n_e, n_h, f"too few essential inliers ({n_e})")
+    _, R, t, mask_p = cv2.recoverPose(E, pa, pb, K, mask=mask_e.copy())
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t.reshape(3) / max(np.linalg.norm(t), 1e-12)
+    inl = mask_p.reshape(-1) > 0
+    X, par, err = triangulate_rays(K, pa[inl], pb[inl], T)
+    good = np.isfinite(X).all(1) & (err < 2.0 * threshold_px) & (par > 0.25 * min_parallax_deg)
+    med_par = float(np.median(par[np.isfinite(X).all(1)])) if np.isfinite(X).any() else 0.0
+    if good.sum() < min_inliers:
+        return TwoViewResult(None, *empty, med_par, n_e, n_h, f"too few well-triangulated points ({good.sum()})")
+    if med_par < min_parallax_deg:
+        return TwoViewResult(None, *empty, med_par, n_e, n_h, f"low parallax ({med_par:.2f} deg)")
+    if n_h >= 0.95 * n_e and med_par < 2.0 * min_parallax_deg:
+        return TwoViewResult(None, *empty, med_par, n_e, n_h, "homography explains the motion (rotation/plane)")
+    return TwoViewResult(T, X[good], pa[inl][good], med_par, n_e, n_h, "ok")
+
+
+def rotation_from_homography(K: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray) -> np.ndarray | None:
+    """``R_b_a`` of a (near) pure rotation, ``x_b ~ K R K^-1 x_a``; None when it cannot be fitted."""
+    if len(uv_a) < 8:
+        return None
+    H, mask = cv2.findHomography(uv_a.astype(np.float64), uv_b.astype(np.float64), cv2.RANSAC, 2.0)
+    if H is None or mask is None or mask.sum() < 8:
+        return None
+    M = np.linalg.inv(K) @ H @ K
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        R = -R
+    return R
+
+
+def bundle_adjust(
+    K: np.ndarray,
+    T_i_0: np.ndarray,  # [F, 4, 4] initial poses (frame 0 -> frame i); T_i_0[0] = I is held fixed
+    uv0: np.ndarray,  # [N, 2] track pixels in frame 0
+    inv_depth: np.ndarray,  # [N] initial inverse depths in frame 0
+    obs_uv: np.ndarray,  # [F, N, 2] observations (NaN where not seen)
+    threshold_px: float,
+    max_nfev: int = 30,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint refinement of the poses and frame-0 inverse depths (Huber loss, sparse Jacobian).
+
+    Returns (T_i_0 [F, 4, 4], inv_depth [N]). Scale is not fixed by the cost; it stays close to
+    the initial one because the solver takes small trust-region steps from it.
+    """
+    F, N = obs_uv.shape[:2]
+    seen = np.isfinite(obs_uv).all(-1)  # [F, N]
+    seen[0] = False
+    fi, pj = np.nonzero(seen)
+    if len(fi) < 6 * (F - 1) + 10:
+        return T_i_0, inv_depth
+    b = rays(K, uv0)  # [N, 3]
+    x0 = np.concatenate([np.concatenate([cv2.Rodrigues(T[:3, :3])[0].ravel(), T[:3, 3]]) for T in T_i_0[1:]]
+                        + [inv_depth])
+
+    def unpack(x):
+        P = x[: 6 * (F - 1)].reshape(F - 1, 6)
+        return P, x[6 * (F - 1):]
+
+    def residual(x):
+        P, rho = unpack(x)
+        Rs = np.stack([np.eye(3)] + [cv2.Rodrigues(p[:3])[0] for p in P])
+        ts = np.concatenate([np.zeros((1, 3)), P[:, 3:]])
+        X = b[pj] / rho[pj, None]
+        Xc = np.einsum("nij,nj->ni", Rs[fi], X) + ts[fi]
+        z = np.where(Xc[:, 2] > 1e-9, Xc[:, 2], 1e-9)
+        u = K[0, 0] * Xc[:, 0] / z + K[0, 2] - obs_uv[fi, pj, 0]
+        v = K[1, 1] * Xc[:, 1] / z + K[1, 2] - obs_uv[fi, pj, 1]
+        return np.concatenate([u, v])
+
+    n_obs = len(fi)
+    S = lil_matrix((2 * n_obs, len(x0)), dtype=np.int8)
+    rows = np.arange(n_obs)
+    for k in range(6):
+        S[rows, 6 * (fi - 1) + k] = 1
+        S[rows + n_obs, 6 * (fi - 1) + k] = 1
+    S[rows, 6 * (F - 1) + pj] = 1
+    S[rows + n_obs, 6 * (F - 1) + pj] = 1
+    lb = np.full(len(x0), -np.inf)
+    lb[6 * (F - 1):] = 1e-6
+    sol = least_squares(residual, np.maximum(x0, lb + 1e-12), jac_sparsity=S, loss="huber",
+                        f_scale=threshold_px, max_nfev=max_nfev, x_scale="jac", method="trf",
+                        bounds=(lb, np.inf))
+    P, rho = unpack(sol.x)
+    out = T_i_0.copy()
+    for k, p in enumerate(P, start=1):
+        out[k, :3, :3] = cv2.Rodrigues(p[:3])[0]
+        out[k, :3, 3] = p[3:]
+    return out, rho

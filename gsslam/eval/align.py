@@ -70,10 +70,11 @@ def align_positions(gt_xyz: np.ndarray, est_xyz: np.ndarray, method: str = "sim3
             f"{method} alignment needs at least 3 associated poses, got {len(est_xyz)}; check the "
             "timestamps (--max-dt) or use --align none"
         )
-    # Same rank test as evo: the cross-covariance needs rank >= 2 (not all points on one line).
+    # Like evo, the cross-covariance needs rank >= 2 (the points are not all on one line); evo tests
+    # the singular values against machine epsilon, here relative to the largest one (scale-free).
     xs, xd = est_xyz - est_xyz.mean(0), gt_xyz - gt_xyz.mean(0)
     sv = np.linalg.svd(xd.T @ xs / len(xs), compute_uv=False)
-    if np.count_nonzero(sv > np.finfo(np.float64).eps) < 2:
+    if not sv[1] > 1e-10 * sv[0]:
         raise AlignmentError(
             f"{method} alignment is undetermined: the {len(est_xyz)} associated positions are (nearly) "
             "collinear or identical; use --align none"

@@ -35,9 +35,9 @@ def ate_from_pairs(gt_xyz: np.ndarray, est_xyz: np.ndarray, align: str = "sim3")
 
 
 def compute_ate(
-    gt: Trajectory, est: Trajectory, align: str = "sim3", max_dt: float = 0.02
+    gt: Trajectory, est: Trajectory, align: str = "sim3", max_dt: float = 0.02, one_to_one: bool = True
 ) -> tuple[AteResult, Association]:
     """Associate ``est`` with ``gt`` by timestamp, align, and return the ATE with the association."""
-    assoc = associate(gt, est, max_dt)
+    assoc = associate(gt, est, max_dt, one_to_one)
     result = ate_from_pairs(gt.positions[assoc.gt_indices], est.positions[assoc.est_indices], align)
     return result, assoc

@@ -68,9 +68,13 @@ def evaluate(
     rpe_delta: int = 1,
     gt_name: str = "ground truth",
     est_name: str = "estimate",
+    one_to_one: bool = True,
 ) -> EvalReport:
-    """Associate, align (``sim3`` | ``se3`` | ``none``), then ATE and RPE; the inputs are not modified."""
-    ate, assoc = compute_ate(gt, est, align=align, max_dt=max_dt)
+    """Associate, align (``sim3`` | ``se3`` | ``none``), then ATE and RPE; the inputs are not modified.
+
+    ``one_to_one=False`` reproduces evo's pairing exactly (see :mod:`gsslam.eval.association`).
+    """
+    ate, assoc = compute_ate(gt, est, align=align, max_dt=max_dt, one_to_one=one_to_one)
     gt_poses = gt.poses[assoc.gt_indices]
     est_aligned = ate.alignment.apply_poses(est.poses[assoc.est_indices])
     rpe = compute_rpe(gt_poses, est_aligned, rpe_delta)

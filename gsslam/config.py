@@ -90,6 +90,16 @@ class MapperConfig:
     lr_opacity: float = 5e-2
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
+    lr_pose: float = 1e-3  # Adam step of the keyframe se(3) pose deltas (rad, world units)
+    init_stride: int = 2  # new Gaussians from every init_stride-th pixel (mapper resolution)
+    init_opacity: float = 0.7
+    min_confidence: float = 0.1  # point-map pixels below this confidence seed no Gaussians
+    flow_sigma_px: float = 1.0  # robust flow likelihood, at mapper resolution
+    flow_inlier_prior: float = 0.9
+    flow_outlier_range_px: float = 20.0
+    densify_error: float = 0.5  # mean normalized error that triggers clone/split (see docs/mapping.md)
+    prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
+    min_opacity: float = 0.05  # Gaussians below this opacity are pruned
 
 
 @dataclass(frozen=True)

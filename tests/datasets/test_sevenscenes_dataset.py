@@ -1,0 +1,86 @@
+"""7-Scenes loader on a tiny folder written here in the original layout (no real 7-Scenes data is
+available offline): random colour images, depth in millimetres with the invalid codes 0 and 65535,
+and 4x4 camera-to-world pose files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from gsslam.datasets import DatasetError, open_dataset
+from gsslam.datasets.sevenscenes import SevenScenesDataset
+from gsslam.geometry import make_T, so3_exp
+
+
+def write_sequence(seq: Path, n: int = 3, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    seq.mkdir(parents=True)
+    truth = {"color": [], "depth_mm": [], "pose": []}
+    for i in range(n):
+        color = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+        depth = rng.integers(400, 4000, (480, 640)).astype(np.uint16)
+        depth[:10] = 0
+        depth[-10:] = 65535
+        T = make_T(so3_exp(rng.normal(size=3)), rng.normal(size=3))
+        cv2.imwrite(str(seq / f"frame-{i:06d}.color.png"), color)
+        cv2.imwrite(str(seq / f"frame-{i:06d}.depth.png"), depth)
+        np.savetxt(seq / f"frame-{i:06d}.pose.txt", T, fmt="%.9e")
+        truth["color"].append(color[:, :, ::-1] / 255.0)
+        truth["depth_mm"].append(depth)
+        truth["pose"].append(T)
+    return truth
+
+
+def test_layout_depth_and_poses(tmp_path):
+    truth = write_sequence(tmp_path / "chess" / "seq-01")
+    ds = open_dataset("7scenes", tmp_path / "chess", sequence=1)
+    assert len(ds) == 3 and ds.has_depth and ds.name == "chess_seq-01"
+    K = ds.intrinsics
+    assert (K.fx, K.fy, K.cx, K.cy, K.width, K.height, K.distortion) == (585, 585, 320, 240, 640, 480, ())
+    np.testing.assert_allclose(ds.timestamps(), [0, 1 / 30, 2 / 30])
+    f = ds[1]
+    np.testing.assert_allclose(f.image, truth["color"][1], atol=1e-6)
+    mm = truth["depth_mm"][1]
+    assert np.isnan(f.depth[:10]).all() and np.isnan(f.depth[-10:]).all()
+    np.testing.assert_allclose(f.depth[10:-10], mm[10:-10] / 1000.0, rtol=1e-6)
+    np.testing.assert_allclose(f.T_world_cam_gt, truth["pose"][1], rtol=1e-8, atol=1e-9)
+    gt = ds.ground_truth()
+    np.testing.assert_allclose(gt.poses, np.stack(truth["pose"]), rtol=1e-8, atol=1e-9)
+    assert gt.meta["frame_indices"] == [0, 1, 2]
+
+
+def test_missing_or_invalid_poses(tmp_path):
+    seq = tmp_path / "seq-02"
+    write_sequence(seq)
+    (seq / "frame-000001.pose.txt").write_text("inf inf inf inf\n" * 4)
+    (seq / "frame-000002.pose.txt").unlink()
+    ds = SevenScenesDataset(seq)
+    assert ds[1].T_world_cam_gt is None and ds[2].T_world_cam_gt is None
+    assert ds.ground_truth().meta["frame_indices"] == [0]
+    (seq / "frame-000000.pose.txt").write_text("1 0 0\n0 1 0\n")
+    with pytest.raises(DatasetError, match="4x4"):
+        ds[0]
+
+
+def test_malformed(tmp_path):
+    seq = tmp_path / "seq-03"
+    write_sequence(seq)
+    cv2.imwrite(str(seq / "frame-000000.depth.png"), np.ones((240, 320), np.uint16))
+    ds = SevenScenesDataset(seq)
+    with pytest.raises(DatasetError, match="colour resolution"):
+        ds[0]
+    (seq / "frame-000001.color.png").write_bytes(b"broken")
+    with pytest.raises(DatasetError, match="corrupt"):
+        ds[1]
+    (seq / "frame-000002.depth.png").unlink()
+    with pytest.raises(DatasetError, match="with_depth=False"):
+        SevenScenesDataset(seq)
+    assert SevenScenesDataset(seq, with_depth=False)[2].depth is None
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="empty"):
+        SevenScenesDataset(tmp_path / "empty")
+    with pytest.raises(DatasetError, match="does not exist"):
+        SevenScenesDataset(tmp_path, sequence="seq-09")

@@ -109,8 +109,19 @@ class LoopConfig:
     min_overlap: float = 0.3  # reprojection overlap ratio
     min_score: float = 0.5  # 0.7 * point overlap + 0.3 * appearance overlap
     min_inliers: int = 30
-    inlier_threshold_m: float = 0.05
+    inlier_threshold_m: float = 0.05  # RGB-D: 3D-3D RANSAC inlier distance (metres)
     max_candidates: int = 3
+    inlier_threshold_rel: float = 0.02  # mono: inlier distance as a fraction of the median scene depth
+    min_inlier_ratio: float = 0.25  # RANSAC inliers / matches needed to accept a loop
+    ransac_iterations: int = 300
+    depth_tolerance_rel: float = 0.2  # reprojected depth must agree with the view's depth within this
+    points_per_submap: int = 600  # subsampled points kept per submap for reprojection overlap
+    orb_features: int = 400  # ORB keypoints per keyframe kept for verification
+    max_reprojection_checks: int = 8  # candidates (by appearance) that get the reprojection test
+    verify_view_pairs: int = 3  # best co-visible view pairs matched per candidate
+    max_drift_ratio: float = 0.2  # loop vs current estimate: disagreement / path length between submaps
+    max_rot_discrepancy_deg: float = 30.0  # loop vs current estimate, before and after optimisation
+    max_residual_factor: float = 3.0  # after optimisation: loop residual RMS / inlier threshold
 
 
 @dataclass(frozen=True)

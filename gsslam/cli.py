@@ -61,7 +61,13 @@ def eval_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     plot: Annotated[Optional[Path], typer.Option(help="Write a PNG: aligned estimate over ground truth.")] = None,
 ) -> None:
-    """ATE (after Umeyama alignment) and RPE of EST against GT."""
+    """ATE (after Umeyama alignment) and RPE of EST against GT.
+
+    Poses are paired by timestamp: nearest within --max-dt, one-to-one (KITTI: line index = time).
+    The estimate is aligned to GT: sim3 (monocular), se3 (RGB-D, stereo) or none.
+    Prints ATE (position error, m) and RPE over --rpe-delta frames (translation m, rotation deg).
+    Definitions match evo's ape/rpe; see docs/evaluation.md.
+    """
     from gsslam.eval.report import evaluate_files
 
     report = evaluate_files(gt, est, align=align, fmt=fmt, max_dt=max_dt, rpe_delta=rpe_delta, plot=plot)

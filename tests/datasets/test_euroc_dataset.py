@@ -130,3 +130,16 @@ def test_broken_copies(euroc, tmp_path):
         EurocDataset(path)
     with pytest.raises(DatasetError, match="mav0"):
         EurocDataset(tmp_path)
+
+
+def test_bundled_prefix(repo_root):
+    """data/euroc_V1_01_easy_20 loads without ../shared: 20 undistorted frames and their IMU window."""
+    ds = open_dataset("euroc", repo_root / "data" / "euroc_V1_01_easy_20")
+    assert len(ds) == 20 and ds.ground_truth() is None and ds[19].T_world_cam_gt is None
+    np.testing.assert_allclose(ds.T_body_cam, T_BS_CAM0, atol=0)
+    imu = ds.imu()
+    t = ds.timestamps_ns()
+    assert len(imu) == 211 and imu.timestamps_ns[0] == t[0]
+    assert imu.timestamps_ns[-1] == t[-1] + 100_000_000  # every sample up to the last image + 0.1 s
+    f = ds[19]
+    assert f.image.shape == (480, 752, 3) and f.intrinsics.distortion == ()

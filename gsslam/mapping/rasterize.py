@@ -97,4 +97,6 @@ def _gsplat_available() -> bool:
 
 
 def _fast_available(means: Tensor) -> bool:
-    return False
+    from gsslam.mapping import rasterize_cpu
+
+    return rasterize_cpu.available(means)

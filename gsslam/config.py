@@ -67,6 +67,12 @@ class GraphConfig:
     relinearize_skip: int = 1
     final_batch_refinement: bool = True
 
+    align_rot_sigma: float = 0.01  # rad, rigid submap alignment through the shared frame
+    align_trans_sigma: float = 0.02  # previous submap's units
+    adjacency_max_points: int = 200  # shared-frame points per adjacency factor
+    flow_max_points: int = 1000  # correspondences kept per flow factor (evenly subsampled)
+    wildfire_threshold: float = 0.001  # iSAM2 Gauss-Newton wildfire threshold
+    batch_max_iterations: int = 100  # Levenberg-Marquardt iterations of refine_batch
 
 @dataclass(frozen=True)
 class MapperConfig:

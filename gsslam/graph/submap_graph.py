@@ -1,0 +1,245 @@
+"""The SLAM graph: SING3R submap chain + GaussianFlow flow factors + loops + mapper depth priors.
+
+Variables: one ``gtsam.Similarity3`` per submap, ``S(i) = T_world_local_i``. A keyframe's pose is
+``T_world_cam = S(i) @ T_local_cam`` with the rigid local pose from the encoder.
+
+Per new submap i (its frame 0 is frame K of submap i-1, ``T_local_cam[0] = I``):
+
+- a rigid alignment ``S(i-1)^-1 S(i) ~ T_local(i-1, K)`` (:mod:`factors.submap_alignment`),
+- a scale factor ``s_i = median D(i-1, K) / median D(i, 0)`` (:mod:`factors.scale`),
+- adjacency points of the shared frame ``S(i-1)(X(i-1, K)) - S(i)(X(i, 0))`` (:mod:`factors.points`).
+
+Gauge: the first submap gets a Sim(3) prior fixing pose AND scale. With ``monocular=False`` (RGB-D,
+metric point maps) every submap also gets a strong prior keeping its scale at 1.
+
+Shared frames: a keyframe belongs to the FIRST submap that contains it (for a shared frame: submap
+i-1, as its frame K). Flow depths are taken to be in that submap's units unless ``src_submap`` says
+otherwise; keyframe poses are read through that submap.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from factors import (
+    make_depth_prior_factor,
+    make_flow_factor,
+    make_point_factor,
+    make_scale_factor,
+    make_scale_prior_factor,
+    make_submap_alignment_factor,
+    median_depth_ratio,
+    to_gtsam,
+    to_matrix,
+)
+from gsslam.config import GraphConfig
+from gsslam.errors import GsslamError
+from gsslam.graph.backend import Backend
+from gsslam.graph.keys import submap_key
+from gsslam.graph.noise import flow_kwargs, gauge_prior_noise
+from gsslam.types import Correspondences, SubmapEncoding
+
+log = logging.getLogger(__name__)
+
+
+class GraphError(GsslamError):
+    """The SLAM graph was given inconsistent submaps, unknown frames or unusable measurements."""
+
+
+def _even_subsample(idx: np.ndarray, n: int) -> np.ndarray:
+    if len(idx) <= n:
+        return idx
+    return idx[np.linspace(0, len(idx) - 1, n).round().astype(int)]
+
+
+class SubmapGraph:
+    """Factor graph over Sim(3) submap transforms, solved incrementally by :class:`Backend` (iSAM2)."""
+
+    def __init__(self, cfg: GraphConfig, monocular: bool):
+        self.cfg = cfg
+        self.monocular = monocular
+        self.backend = Backend.from_config(cfg)
+        self._subs: list[SubmapEncoding] = []
+        self._owner: dict[int, tuple[int, int]] = {}  # frame index -> (submap, position in it)
+
+    # -- submaps -----------------------------------------------------------------------------
+    def add_submap(self, enc: SubmapEncoding) -> int:
+        """Add submap ``S(i)`` chained to the previous one; returns ``i``."""
+        i = len(self._subs)
+        if len(enc.frame_indices) < 2:
+            raise GraphError(f"submap {i} needs at least 2 keyframes, got {len(enc.frame_indices)}")
+        if not np.allclose(enc.T_local_cam[0], np.eye(4), atol=1e-6):
+            raise GraphError(
+                f"submap {i}: T_local_cam[0] must be the identity (frame 0 defines the local frame)"
+            )
+        key = submap_key(i)
+        if i == 0:
+            self.backend.add_value(key, to_gtsam(np.eye(4), "sim3"))
+            import gtsam
+
+            self.backend.add_factor(
+                gtsam.PriorFactorSimilarity3(key, gtsam.Similarity3(), gauge_prior_noise(self.cfg))
+            )
+        else:
+            prev = self._subs[-1]
+            if enc.frame_indices[0] != prev.frame_indices[-1]:
+                raise GraphError(
+                    f"submap {i} starts at frame {enc.frame_indices[0]} but submap {i - 1} ends at frame "
+                    f"{prev.frame_indices[-1]}; consecutive submaps must share that keyframe"
+                )
+            self._chain(i, prev, enc)
+        self._subs.append(enc)
+        for j, f in enumerate(enc.frame_indices):
+            self._owner.setdefault(int(f), (i, j))
+        return i
+
+    def _chain(self, i: int, prev: SubmapEncoding, enc: SubmapEncoding) -> None:
+        cfg = self.cfg
+        a, b = submap_key(i - 1), submap_key(i)
+        try:
+            ratio = median_depth_ratio(prev.depths[-1], enc.depths[0])
+        except ValueError as e:
+            raise GraphError(f"submap {i}: {e}") from e
+        Z = prev.T_local_cam[-1]
+        E = Z @ np.diag([ratio, ratio, ratio, 1.0])
+        self.backend.add_value(b, to_gtsam(self.submap_pose(i - 1) @ E, "sim3"))
+        self.backend.add_factor(
+            make_submap_alignment_factor(a, b, Z, cfg.align_rot_sigma, cfg.align_trans_sigma)
+        )
+        self.backend.add_factor(make_scale_factor(a, b, np.log(ratio), cfg.scale_sigma))
+        if prev.points_cam.shape[1:3] == enc.points_cam.shape[1:3]:
+            Xa = prev.points_cam[-1].reshape(-1, 3)
+            Xb = enc.points_cam[0].reshape(-1, 3)
+            ok = np.isfinite(Xa).all(1) & np.isfinite(Xb).all(1)
+            ok &= (prev.confidence[-1].ravel() > 0) & (enc.confidence[0].ravel() > 0)
+            idx = _even_subsample(np.flatnonzero(ok), cfg.adjacency_max_points)
+            if len(idx) >= 3:
+                Xa_local = Xa[idx] @ Z[:3, :3].T + Z[:3, 3]
+                self.backend.add_factor(make_point_factor(a, b, Xa_local, Xb[idx], cfg.adjacency_sigma_m))
+        else:
+            log.warning("submap %d: point maps of the shared frame differ in size; no adjacency points", i)
+        if not self.monocular:
+            self.backend.add_factor(make_scale_prior_factor(b, 1.0, cfg.prior_scale_sigma))
+
+    # -- measurements ------------------------------------------------------------------------
+    def owner(self, frame_index: int) -> tuple[int, int]:
+        """``(submap, position)`` a keyframe belongs to (the first submap containing it)."""
+        try:
+            return self._owner[int(frame_index)]
+        except KeyError:
+            raise GraphError(f"frame {frame_index} is not a keyframe of any submap added so far") from None
+
+    def _locate(self, frame_index: int, submap: int | None) -> tuple[int, int]:
+        if submap is None:
+            return self.owner(frame_index)
+        if not 0 <= submap < len(self._subs) or frame_index not in self._subs[submap].frame_indices:
+            raise GraphError(f"frame {frame_index} is not in submap {submap}")
+        return submap, list(self._subs[submap].frame_indices).index(frame_index)
+
+    def add_flow(self, corr: Correspondences, K: np.ndarray, src_submap: int | None = None) -> int | None:
+        """Flow factor between the submaps of two keyframes; None for pairs inside one submap.
+
+        ``K`` [3, 3]: intrinsics of the full-resolution images ``corr`` is in. Depths are in the
+        units of ``src_submap`` (default: the submap that owns the source frame, see module doc).
+        Matches with NaN / non-positive depth or zero weight are dropped; None if fewer than 3 remain.
+        """
+        ia, ja = self._locate(corr.src_index, src_submap)
+        ib, jb = self.owner(corr.tgt_index)
+        if ia == ib:
+            return None
+        d = corr.depth_src
+        ok = np.isfinite(d) & (d > 0) & np.isfinite(corr.uv_src).all(1) & np.isfinite(corr.uv_tgt).all(1)
+        ok &= np.isfinite(corr.weight) & (corr.weight > 0)
+        idx = _even_subsample(np.flatnonzero(ok), self.cfg.flow_max_points)
+        if len(idx) < 3:
+            log.debug("flow %d->%d: %d usable matches, no factor", corr.src_index, corr.tgt_index, len(idx))
+            return None
+        factor = make_flow_factor(
+            submap_key(ia), submap_key(ib), corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K,
+            weight=np.clip(corr.weight[idx], 0.0, 1.0), group="sim3",
+            L_a=self._subs[ia].T_local_cam[ja], L_b=self._subs[ib].T_local_cam[jb], **flow_kwargs(self.cfg),
+        )  # fmt: skip
+        return self.backend.add_factor(factor)
+
+    def add_loop(self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None) -> int:
+        """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames."""
+        for s in (i, m):
+            if not 0 <= s < len(self._subs):
+                raise GraphError(f"loop names submap {s} but only {len(self._subs)} submaps exist")
+        if i == m:
+            raise GraphError("a loop needs two different submaps")
+        sig = self.cfg.loop_sigma_m if sigma is None else sigma
+        try:
+            factor = make_point_factor(submap_key(i), submap_key(m), X_i, X_m, sig)
+        except ValueError as e:
+            raise GraphError(f"loop {i}-{m}: {e}") from e
+        return self.backend.add_factor(factor)
+
+    def add_depth_prior(
+        self, frame_index: int, uv: np.ndarray, depth: np.ndarray, K: np.ndarray
+    ) -> int | None:
+        """Rendered depths (world units) at full-resolution pixels ``uv`` [N, 2] of a keyframe.
+
+        The keyframe's local depths are read from its submap's point map at the nearest pixel.
+        Returns None when fewer than 3 pixels have both depths.
+        """
+        i, j = self.owner(frame_index)
+        enc = self._subs[i]
+        uv, depth, K = np.asarray(uv, float), np.asarray(depth, float), np.asarray(K, float)
+        if uv.ndim != 2 or uv.shape[1] != 2 or depth.shape != (len(uv),):
+            raise GraphError(f"depth prior needs uv [N, 2] and depth [N], got {uv.shape} and {depth.shape}")
+        Ke = enc.intrinsics
+        u = np.rint((uv[:, 0] - K[0, 2]) * Ke.fx / K[0, 0] + Ke.cx).astype(int)
+        v = np.rint((uv[:, 1] - K[1, 2]) * Ke.fy / K[1, 1] + Ke.cy).astype(int)
+        h, w = enc.points_cam.shape[1:3]
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        z = np.full(len(uv), np.nan)
+        z[inside] = enc.points_cam[j, v[inside], u[inside], 2]
+        ok = np.isfinite(z) & (z > 0) & np.isfinite(depth) & (depth > 0)
+        if ok.sum() < 3:
+            return None
+        factor = make_depth_prior_factor(submap_key(i), z[ok], depth[ok], self.cfg.depth_prior_sigma)
+        return self.backend.add_factor(factor)
+
+    def remove_factor(self, handle: int) -> None:
+        self.backend.remove_factors([handle])
+
+    # -- solving and reading -----------------------------------------------------------------
+    def update(self, extra_iterations: int = 0) -> None:
+        self.backend.update(extra_iterations)
+
+    def refine_batch(self) -> float:
+        return self.backend.refine_batch()
+
+    @property
+    def num_submaps(self) -> int:
+        return len(self._subs)
+
+    def submap_pose(self, i: int) -> np.ndarray:
+        """``S(i)`` as a 4x4 Sim(3) ``[[s R, t], [0, 1]]``."""
+        return to_matrix(self.backend.estimate(submap_key(i)))
+
+    def submap_scales(self) -> np.ndarray:  # [num_submaps]
+        vals = self.backend.values()
+        return np.array([vals.atSimilarity3(submap_key(i)).scale() for i in range(len(self._subs))])
+
+    def keyframe_pose(self, frame_index: int) -> np.ndarray:
+        """Rigid ``T_world_cam`` [4, 4] (scale removed from the rotation; translation in world units)."""
+        i, j = self.owner(frame_index)
+        return self._rigid(self.submap_pose(i) @ self._subs[i].T_local_cam[j])
+
+    def keyframe_poses(self) -> dict[int, np.ndarray]:
+        vals = self.backend.values()
+        S = [to_matrix(vals.atSimilarity3(submap_key(i))) for i in range(len(self._subs))]
+        return {
+            f: self._rigid(S[i] @ self._subs[i].T_local_cam[j]) for f, (i, j) in sorted(self._owner.items())
+        }
+
+    @staticmethod
+    def _rigid(T: np.ndarray) -> np.ndarray:
+        s = np.cbrt(np.linalg.det(T[:3, :3]))
+        out = T.copy()
+        out[:3, :3] /= s
+        return out

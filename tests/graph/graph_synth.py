@@ -1,0 +1,91 @@
+"""A synthetic SING3R-style submap chain with known truth: a camera on a circle inside a textured cylinder.
+
+Each submap i has its own (unknown) unit ``sigma_i`` and an internal scale drift: frame j of the
+submap is expressed in units ``sigma_i (1 + eps_i)^(j / K)``, so chaining through the shared frame
+accumulates ~``eps`` of scale error per submap. Local rotations carry small noise. Point maps are
+ray-cast against the cylinder, so a frame seen again after the loop has the same point map.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gsslam.geometry import so3_exp
+from gsslam.types import CameraIntrinsics, SubmapEncoding
+
+INTR = CameraIntrinsics(fx=20.0, fy=20.0, cx=7.5, cy=5.5, width=16, height=12)
+WALL_RADIUS = 10.0
+
+
+def true_pose(f: int, n_frames: int, radius: float = 5.0) -> np.ndarray:
+    """T_world_cam of frame ``f`` on a circle (y is up/down), looking outward; frame n_frames == 0."""
+    th = 2 * np.pi * f / n_frames
+    c = np.array([radius * np.cos(th), 0.0, radius * np.sin(th)])
+    z = np.array([np.cos(th + 0.5), 0.0, np.sin(th + 0.5)])  # looking outward, a little ahead
+    y = np.array([0.0, 1.0, 0.0])
+    x = np.cross(y, z)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], axis=1)
+    T[:3, 3] = c
+    return T
+
+
+def point_map(T_wc: np.ndarray) -> np.ndarray:
+    """[h, w, 3] camera points where the pixel rays hit the cylinder wall."""
+    K = INTR.K
+    u, v = np.meshgrid(np.arange(INTR.width, dtype=float), np.arange(INTR.height, dtype=float))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # z = 1
+    d = rays @ T_wc[:3, :3].T
+    c = T_wc[:3, 3]
+    a = d[..., 0] ** 2 + d[..., 2] ** 2
+    b = 2 * (c[0] * d[..., 0] + c[2] * d[..., 2])
+    cc = c[0] ** 2 + c[2] ** 2 - WALL_RADIUS**2
+    t = (-b + np.sqrt(b * b - 4 * a * cc)) / (2 * a)
+    return rays * t[..., None]
+
+
+def make_chain(
+    n_submaps: int = 50, K: int = 6, drift: float = 0.02, rot_noise_deg: float = 0.1, seed: int = 0
+):
+    """-> (encodings, truth {frame: T_world_cam}); the last submap's last frame revisits frame 0."""
+    rng = np.random.default_rng(seed)
+    n_frames = n_submaps * K
+    truth = {f: true_pose(f, n_frames) for f in range(n_frames + 1)}
+    encs = []
+    for i in range(n_submaps):
+        frames = list(range(i * K, i * K + K + 1))
+        sigma = float(np.exp(rng.uniform(-0.5, 0.5)))
+        eps = drift * (1 + 0.25 * rng.standard_normal())
+        T0_inv = np.linalg.inv(truth[frames[0]])
+        T_local = np.empty((K + 1, 4, 4))
+        pts = np.empty((K + 1, INTR.height, INTR.width, 3))
+        for j, f in enumerate(frames):
+            unit = sigma * (1 + eps) ** (j / K)
+            T = T0_inv @ truth[f]
+            if j > 0:
+                T[:3, :3] = T[:3, :3] @ so3_exp(rng.normal(scale=np.deg2rad(rot_noise_deg), size=3))
+            T[:3, 3] /= unit
+            T_local[j] = T
+            pts[j] = point_map(truth[f]) / unit
+        conf = np.ones(pts.shape[:3])
+        encs.append(SubmapEncoding(frames, T_local, pts, conf, INTR, meta={"unit": sigma}))
+    return encs, truth
+
+
+def ate(est: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> float:
+    """RMSE of positions after Sim(3) Umeyama alignment."""
+    from gsslam.geometry import umeyama
+
+    frames = sorted(est)
+    P = np.array([est[f][:3, 3] for f in frames])
+    G = np.array([truth[f][:3, 3] for f in frames])
+    T = umeyama(P, G, with_scale=True)
+    return float(np.sqrt(((P @ T[:3, :3].T + T[:3, 3] - G) ** 2).sum(1).mean()))
+
+
+def loop_points(encs, i: int, j: int, m: int, jm: int, step: int = 3):
+    """Points of the same pixels of frame j of submap i and frame jm of submap m, in their local frames."""
+    a = encs[i].points_cam[j][::step, ::step].reshape(-1, 3)
+    b = encs[m].points_cam[jm][::step, ::step].reshape(-1, 3)
+    Ta, Tb = encs[i].T_local_cam[j], encs[m].T_local_cam[jm]
+    return a @ Ta[:3, :3].T + Ta[:3, 3], b @ Tb[:3, :3].T + Tb[:3, 3]

@@ -42,7 +42,8 @@ def test_table_json_and_plot(files):
     res = runner.invoke(app, ["eval", str(gt), str(est)])
     assert res.exit_code == 0, res.output
     assert "ATE rmse" in res.output and "RPE rot rmse (d=1)" in res.output and "sim3" in res.output
-    res = runner.invoke(app, ["eval", str(gt), str(est), "--json", "--rpe-delta", "3", "--plot", str(d / "p.png")])
+    args = ["eval", str(gt), str(est), "--json", "--rpe-delta", "3", "--plot", str(d / "p.png")]
+    res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["association"]["pairs"] == 117

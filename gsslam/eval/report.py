@@ -11,8 +11,8 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from gsslam.eval.ate import AteResult, compute_ate
 from gsslam.eval.association import Association
+from gsslam.eval.ate import AteResult, compute_ate
 from gsslam.eval.rpe import RpeResult, compute_rpe
 from gsslam.types import Trajectory
 
@@ -50,7 +50,8 @@ class EvalReport:
                       f"{self.association.dt.max():.4f} s <= {self.max_dt} s)"),
             ("alignment", f"{self.ate.alignment.method}, scale {self.ate.alignment.scale:.6f}"),
         ]
-        rows += [(f"ATE {k}", f"{getattr(a, k):.6f} m") for k in ("rmse", "mean", "median", "std", "min", "max")]
+        stats = ("rmse", "mean", "median", "std", "min", "max")
+        rows += [(f"ATE {k}", f"{getattr(a, k):.6f} m") for k in stats]
         rows += [
             (f"RPE trans rmse (d={self.rpe.delta})", f"{t.rmse:.6f} m"),
             (f"RPE trans mean (d={self.rpe.delta})", f"{t.mean:.6f} m"),

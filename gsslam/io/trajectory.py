@@ -184,7 +184,7 @@ def read_trajectory(path: str | Path, fmt: str = "tum", times_path: str | Path |
     """Read a trajectory file in format ``fmt`` ('tum' or 'kitti')."""
     if fmt == "tum":
         if times_path is not None:
-            raise TrajectoryIOError("a times file only applies to the KITTI format; TUM lines hold timestamps")
+            raise TrajectoryIOError("a times file is for KITTI files only; TUM lines hold timestamps")
         return read_tum(path)
     if fmt == "kitti":
         return read_kitti(path, times_path)

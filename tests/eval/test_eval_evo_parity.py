@@ -48,7 +48,8 @@ def _check(gt_path, est_path, align: str, max_dt: float = 0.02, delta: int = 1, 
     ev = _evo(gt_path, est_path, align, max_dt, delta)
     np.testing.assert_array_equal(gt.timestamps[rep.association.gt_indices], ev["ref_stamps"])
     np.testing.assert_array_equal(est.timestamps[rep.association.est_indices], ev["est_stamps"])
-    for key, mine in (("ape", rep.ate.stats), ("rpe_t", rep.rpe.translation), ("rpe_r", rep.rpe.rotation_deg)):
+    mine_all = {"ape": rep.ate.stats, "rpe_t": rep.rpe.translation, "rpe_r": rep.rpe.rotation_deg}
+    for key, mine in mine_all.items():
         for s in STATS:
             assert getattr(mine, s) == pytest.approx(ev[key][s], abs=1e-6), (key, s)  # metres or degrees
     assert rep.ate.stats.rmse > 1e-3  # the comparison is not between two zeros

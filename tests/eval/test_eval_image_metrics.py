@@ -64,7 +64,8 @@ def test_ssim_single_window_hand_computed():
 def test_ssim_matches_an_independent_gaussian_filter_on_a_real_image(teddy_image):
     ndimage = pytest.importorskip("scipy.ndimage")
     rng = np.random.default_rng(1)
-    b = np.clip(cv2.GaussianBlur(teddy_image, (5, 5), 1.0) + rng.normal(scale=0.02, size=teddy_image.shape), 0, 1)
+    noise = rng.normal(scale=0.02, size=teddy_image.shape)
+    b = np.clip(cv2.GaussianBlur(teddy_image, (5, 5), 1.0) + noise, 0, 1)
 
     def f(x):
         return ndimage.gaussian_filter(x, sigma=(1.5, 1.5, 0), truncate=3.5, mode="reflect")
@@ -79,7 +80,8 @@ def test_ssim_matches_an_independent_gaussian_filter_on_a_real_image(teddy_image
 
 def test_ssim_properties(teddy_image):
     rng = np.random.default_rng(2)
-    noisy = [np.clip(teddy_image + rng.normal(scale=s, size=teddy_image.shape), 0, 1) for s in (0.01, 0.05, 0.2)]
+    shape = teddy_image.shape
+    noisy = [np.clip(teddy_image + rng.normal(scale=s, size=shape), 0, 1) for s in (0.01, 0.05, 0.2)]
     scores = [ssim(teddy_image, n) for n in noisy]
     assert 1.0 > scores[0] > scores[1] > scores[2] > 0.0
     assert ssim(noisy[1], teddy_image) == pytest.approx(scores[1], abs=1e-12)  # symmetric

@@ -44,7 +44,9 @@ def read_rows(path: Path, sep: str | None = None, what: str = "file") -> list[tu
 
 def parse_floats(fields: list[str], count: int, path: Path, line: int) -> np.ndarray:  # -> [count]
     if len(fields) < count:
-        raise DatasetFormatError(f"{path}:{line}: expected {count} numbers, got {len(fields)}: {' '.join(fields)}")
+        raise DatasetFormatError(
+            f"{path}:{line}: expected {count} numbers, got {len(fields)}: {' '.join(fields)}"
+        )
     try:
         return np.array([float(x) for x in fields[:count]], dtype=np.float64)
     except ValueError:
@@ -106,7 +108,9 @@ class FrameGroundTruth:
         self.gt_index = gt_index
 
     @classmethod
-    def by_time(cls, trajectory: Trajectory | None, frame_times: np.ndarray, max_dt: float) -> FrameGroundTruth:
+    def by_time(
+        cls, trajectory: Trajectory | None, frame_times: np.ndarray, max_dt: float
+    ) -> FrameGroundTruth:
         if trajectory is None:
             return cls(None, None)
         return cls(trajectory, associate_nearest(frame_times, trajectory.timestamps, max_dt))
@@ -125,7 +129,7 @@ class FrameGroundTruth:
         return Trajectory(
             np.asarray(frame_times)[idx],
             self.trajectory.poses[self.gt_index[idx]],
-            meta={"frame_indices": idx.tolist(), **self.trajectory.meta},
+            meta={**self.trajectory.meta, "frame_indices": idx.tolist()},
         )
 
 
@@ -155,7 +159,9 @@ def load_intrinsics_yaml(path: Path, width: int | None = None, height: int | Non
         raise DatasetFormatError(f"intrinsics file {path} must be a mapping with keys fx, fy, cx, cy")
     missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
     if missing:
-        raise DatasetFormatError(f"intrinsics file {path} lacks {', '.join(missing)}; give fx, fy, cx, cy in pixels")
+        raise DatasetFormatError(
+            f"intrinsics file {path} lacks {', '.join(missing)}; give fx, fy, cx, cy in pixels"
+        )
     w = data.get("width", width)
     h = data.get("height", height)
     if w is None or h is None:

@@ -202,7 +202,9 @@ class EurocDataset:
         else:
             body = read_tum_trajectory(path, "EuRoC ground truth (TUM format)")
             t, T_W_B = body.timestamps, body.poses
-        return Trajectory(t, T_W_B @ self.T_body_cam, meta={"source": str(path), "frame": "cam0 = body @ T_BS"})
+        return Trajectory(
+            t, T_W_B @ self.T_body_cam, meta={"source": str(path), "frame": "cam0 = body @ T_BS"}
+        )
 
     def __len__(self) -> int:
         return len(self._times)

@@ -76,7 +76,9 @@ def read_depth(path: Path, scale: float, invalid: tuple[int, ...] = (0,)) -> np.
     """Depth in metres from a 16-bit (or 8/32-bit) single-channel file: ``raw / scale``, NaN where invalid."""
     raw = _imread(path)
     if raw.ndim != 2:
-        raise ImageReadError(f"depth file {path} has {raw.shape[2]} channels; expected a single-channel image")
+        raise ImageReadError(
+            f"depth file {path} has {raw.shape[2]} channels; expected a single-channel image"
+        )
     depth = raw.astype(np.float32) / np.float32(scale)
     bad = np.isin(raw, np.asarray(invalid, dtype=raw.dtype)) if invalid else np.zeros(raw.shape, bool)
     depth[bad | ~np.isfinite(depth)] = np.nan

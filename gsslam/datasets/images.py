@@ -54,7 +54,9 @@ class _Video:
             raise ImagesError(f"video {path} has no decodable frame; the sequence is empty")
         self.width, self.height = int(first.shape[1]), int(first.shape[0])
         if self.count <= 0:
-            raise ImagesError(f"video {path} does not report its frame count; convert it to a folder of images")
+            raise ImagesError(
+                f"video {path} does not report its frame count; convert it to a folder of images"
+            )
 
     def read(self, i: int) -> np.ndarray:
         if self._cap is None:
@@ -100,7 +102,9 @@ class ImageSequenceDataset:
         if self.root.is_dir():
             self._files = sorted(p for p in self.root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             if not self._files:
-                raise ImagesError(f"{self.root} holds no images ({', '.join(IMAGE_SUFFIXES)}); the sequence is empty")
+                raise ImagesError(
+                    f"{self.root} holds no images ({', '.join(IMAGE_SUFFIXES)}); the sequence is empty"
+                )
             width, height = image_size(self._files[0])
             source_fps = None
         elif self.root.is_file():
@@ -117,12 +121,13 @@ class ImageSequenceDataset:
             intrinsics = CameraIntrinsics(fx, fy, cx, cy, width, height, tuple(float(d) for d in distortion))
         if intrinsics is None:
             raise ImagesError(
-                f"{self.root}: intrinsics are needed; pass intrinsics_file= (CLI: --intrinsics) with a YAML like\n"
-                + _YAML_EXAMPLE
+                f"{self.root}: intrinsics are needed; pass intrinsics_file= (CLI: --intrinsics) "
+                "with a YAML like\n" + _YAML_EXAMPLE
             )
         if (intrinsics.width, intrinsics.height) != (width, height):
             raise ImagesError(
-                f"intrinsics are for {intrinsics.width}x{intrinsics.height} but the images are {width}x{height}; "
+                f"intrinsics are for {intrinsics.width}x{intrinsics.height} "
+                f"but the images are {width}x{height}; "
                 "fix width/height (or fx, fy, cx, cy) in the intrinsics"
             )
         self._undistort = Undistorter(intrinsics)

@@ -23,7 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from gsslam.datasets.base import DatasetError, register_dataset
-from gsslam.datasets.common import FrameGroundTruth, check_increasing, normalize_index, parse_floats, read_rows
+from gsslam.datasets.common import (
+    FrameGroundTruth,
+    check_increasing,
+    normalize_index,
+    parse_floats,
+    read_rows,
+)
 from gsslam.datasets.image_io import image_size, read_color
 from gsslam.geometry import invert_T
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
@@ -54,7 +60,9 @@ def read_kitti_calib(seq_dir: Path) -> dict[str, np.ndarray]:
         if not out:
             raise KittiError(f"{path} holds no projection matrix")
         return out
-    raise KittiError(f"{seq_dir} has neither calib.txt nor calib_P0_P1.txt; copy the sequence's calib.txt there")
+    raise KittiError(
+        f"{seq_dir} has neither calib.txt nor calib_P0_P1.txt; copy the sequence's calib.txt there"
+    )
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:  # -> [N, 4, 4]
@@ -114,7 +122,9 @@ class KittiOdometryDataset:
         if P is None:
             raise KittiError(f"{seq_dir}: the calibration has no P{camera}")
         w, h = image_size(self._files[0])
-        self.intrinsics = CameraIntrinsics(float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2]), w, h)
+        self.intrinsics = CameraIntrinsics(
+            float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2]), w, h
+        )
         # P_i = K [I | t_i]: points in camera i are camera-0 points plus t_i.
         self.T_cam0_cam = np.eye(4)
         self.T_cam0_cam[:3, 3] = -np.linalg.solve(P[:, :3], P[:, 3])

@@ -90,7 +90,9 @@ class SevenScenesDataset:
         self._fps = float(fps)
         self.intrinsics = intrinsics.undistorted() if intrinsics is not None else SEVEN_SCENES_INTRINSICS
         if intrinsics is not None and intrinsics.has_distortion:
-            raise SevenScenesError("7-Scenes images are used as pinhole images; give intrinsics without distortion")
+            raise SevenScenesError(
+                "7-Scenes images are used as pinhole images; give intrinsics without distortion"
+            )
         self.has_depth = bool(with_depth)
         if with_depth:
             missing = [p for p in self._color if not self._depth_path(p).is_file()]
@@ -148,7 +150,9 @@ class SevenScenesDataset:
                 poses.append(T)
                 idx.append(i)
         if poses:
-            self._gt = Trajectory(np.array(times), np.stack(poses), meta={"frame_indices": idx, "source": str(self.root)})
+            self._gt = Trajectory(
+                np.array(times), np.stack(poses), meta={"frame_indices": idx, "source": str(self.root)}
+            )
 
     def ground_truth(self) -> Trajectory | None:
         self._load_gt()

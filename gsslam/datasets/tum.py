@@ -100,8 +100,9 @@ class TumRgbdDataset:
             sensor = tum_sensor_from_name(self.root.resolve().name)
             if sensor is None:
                 raise TumError(
-                    f"cannot tell the TUM sensor from the folder name '{self.root.name}'; keep 'freiburg1/2/3' "
-                    "in the name or pass intrinsics=CameraIntrinsics(...) / intrinsics_file=..."
+                    f"cannot tell the TUM sensor from the folder name '{self.root.name}'; "
+                    "keep 'freiburg1/2/3' in the name or pass intrinsics=CameraIntrinsics(...) "
+                    "or intrinsics_file=..."
                 )
             intrinsics = TUM_INTRINSICS[sensor]
         self._undistort = Undistorter(intrinsics)
@@ -114,7 +115,9 @@ class TumRgbdDataset:
         depth_files: list[str | None] = [None] * len(rgb_t)
         self.has_depth = bool(with_depth)
         if with_depth:
-            d_t, d_files = _read_list(self.root / "depth.txt", "TUM depth.txt (use with_depth=False for RGB only)")
+            d_t, d_files = _read_list(
+                self.root / "depth.txt", "TUM depth.txt (use with_depth=False for RGB only)"
+            )
             match = associate_nearest(rgb_t, d_t, self.max_dt)
             unmatched = np.flatnonzero(match < 0)
             if len(unmatched):

@@ -61,7 +61,9 @@ def test_frames_timestamps_and_intrinsics(euroc):
     np.testing.assert_allclose((t - 1403715273) * 1e9, (t_ns - 1403715273 * 10**9).astype(float), atol=500)
     f = ds[3]
     assert f.image.shape == (480, 752, 3) and f.depth is None
-    assert np.array_equal(f.image[..., 0], f.image[..., 1]) and np.array_equal(f.image[..., 1], f.image[..., 2])
+    assert np.array_equal(f.image[..., 0], f.image[..., 1]) and np.array_equal(
+        f.image[..., 1], f.image[..., 2]
+    )
     raw = cv2.imread(str(euroc / "mav0" / "cam0" / "data" / rows[3, 1].strip()), cv2.IMREAD_GRAYSCALE) / 255.0
     assert np.abs(f.image[..., 0] - raw).mean() > 0.01  # undistorted, not the raw image
 

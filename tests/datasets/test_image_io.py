@@ -12,7 +12,9 @@ from gsslam.datasets.image_io import Undistorter, read_color, read_depth
 from gsslam.types import CameraIntrinsics
 
 FR1 = CameraIntrinsics(517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633))
-EUROC = CameraIntrinsics(458.654, 457.296, 367.215, 248.375, 752, 480, (-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05))
+EUROC = CameraIntrinsics(
+    458.654, 457.296, 367.215, 248.375, 752, 480, (-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05)
+)
 
 
 def _pattern(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -51,7 +53,7 @@ def test_no_distortion_is_identity_and_size_is_checked():
 
 
 def test_read_color_and_depth(tmp_path):
-    gray16 = (np.arange(12, dtype=np.uint16).reshape(3, 4) * 5000)
+    gray16 = np.arange(12, dtype=np.uint16).reshape(3, 4) * 5000
     cv2.imwrite(str(tmp_path / "g16.png"), gray16)
     c = read_color(tmp_path / "g16.png")
     assert c.shape == (3, 4, 3) and c.dtype == np.float32

@@ -70,7 +70,9 @@ def test_labelled_calib_and_right_camera(kitti, tmp_path):
     np.testing.assert_allclose(right[0].T_world_cam_gt, np.eye(4), atol=1e-9)
     # both rigs move identically: right = inv(T_0_1) @ left @ T_0_1
     T01 = right.T_cam0_cam
-    np.testing.assert_allclose(right[2].T_world_cam_gt, np.linalg.inv(T01) @ left[2].T_world_cam_gt @ T01, atol=1e-9)
+    np.testing.assert_allclose(
+        right[2].T_world_cam_gt, np.linalg.inv(T01) @ left[2].T_world_cam_gt @ T01, atol=1e-9
+    )
 
 
 def test_broken_copies(kitti, tmp_path):

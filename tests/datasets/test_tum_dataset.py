@@ -102,7 +102,10 @@ def test_fr1_folder_name_undistorts(bundled_tum, tmp_path):
     assert np.abs(a.image - b.image).mean() > 0.01  # the fr1 distortion model moved pixels
     # near the principal point the distortion is tiny: the image barely changes there
     cy, cx = int(round(ds.intrinsics.cy)), int(round(ds.intrinsics.cx))
-    assert np.abs(a.image[cy - 3 : cy + 4, cx - 3 : cx + 4] - b.image[cy - 3 : cy + 4, cx - 3 : cx + 4]).mean() < 0.02
+    assert (
+        np.abs(a.image[cy - 3 : cy + 4, cx - 3 : cx + 4] - b.image[cy - 3 : cy + 4, cx - 3 : cx + 4]).mean()
+        < 0.02
+    )
     assert np.isnan(b.depth[0, 0]) and np.isnan(b.depth).mean() > np.isnan(a.depth).mean()
     valid = ~np.isnan(b.depth)
     assert np.isin(b.depth[valid], a.depth[~np.isnan(a.depth)]).all()  # nearest: no new depth values

@@ -42,6 +42,14 @@ def match_3d(rec_i: SubmapRecord, rec_m: SubmapRecord, view_pairs: tuple[tuple[i
     return np.concatenate(Xi), np.concatenate(Xm)
 
 
+def _iterations_for(inlier_fraction: float, confidence: float = 0.999) -> int:
+    """Samples needed to draw one all-inlier triple with the given confidence (adaptive stop)."""
+    w3 = inlier_fraction**3
+    if w3 >= 1.0 - 1e-12:
+        return 1
+    return int(np.ceil(np.log(1.0 - confidence) / np.log(1.0 - w3))) + 1
+
+
 def ransac_transform(
     X_i: np.ndarray,  # [N, 3]
     X_m: np.ndarray,  # [N, 3]
@@ -56,7 +64,10 @@ def ransac_transform(
     if n < 3:
         return None, best
     samples = np.stack([rng.choice(n, size=3, replace=False) for _ in range(iterations)])
-    for idx in samples:
+    needed = iterations
+    for it, idx in enumerate(samples):
+        if it >= needed:
+            break
         A, B = X_m[idx], X_i[idx]
         # skip degenerate (near-collinear) samples
         if np.linalg.norm(np.cross(A[1] - A[0], A[2] - A[0])) < 1e-9:
@@ -68,6 +79,7 @@ def ransac_transform(
         inl = np.linalg.norm(transform_points(T, X_m) - X_i, axis=1) < threshold
         if inl.sum() > best.sum():
             best = inl
+            needed = min(iterations, _iterations_for(best.mean()))
     if best.sum() < 3:
         return None, best
     for _ in range(2):  # refit on inliers, re-select

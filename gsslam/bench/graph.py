@@ -1,0 +1,123 @@
+"""``gsslam bench graph``: iSAM2 update time per keyframe and batch LM time on a synthetic chain.
+
+Keyframes (Pose3) move on a circle inside a cylinder, in laps of 100; each new keyframe gets one batched
+flow factor (``points`` matches) from each of its 2 predecessors, and every ``loop_every``-th keyframe
+of the second lap a flow factor to the keyframe one lap earlier (a loop). Times are wall-clock on
+this machine; nothing is asserted (speed is reported, never tested).
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import gtsam
+import numpy as np
+
+from factors import make_flow_factor
+from gsslam.config import GraphConfig
+from gsslam.graph.backend import Backend
+from gsslam.graph.keys import keyframe_key
+from gsslam.graph.noise import isam_params
+
+_K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+_W, _H = 320, 240
+_REPORTED = ("relinearize_threshold", "relinearize_skip", "wildfire_threshold")
+
+
+def _pose(k: int, per_lap: int) -> np.ndarray:
+    th = 2 * np.pi * k / per_lap
+    T = np.eye(4)
+    z = np.array([np.cos(th + 0.3), 0.0, np.sin(th + 0.3)])
+    y = np.array([0.0, 1.0, 0.0])
+    T[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1)
+    T[:3, 3] = [5 * np.cos(th), 0.1 * np.sin(7 * th), 5 * np.sin(th)]
+    return T
+
+
+def _matches(Ta, Tb, n, rng):
+    """n flow matches a -> b from ray-casting a cylinder of radius 10 (1 px noise, 5 % outliers)."""
+    uv = rng.uniform([0, 0], [_W, _H], (4 * n, 2))
+    rays = np.c_[(uv - _K[:2, 2]) / _K[[0, 1], [0, 1]], np.ones(len(uv))]
+    d, c = rays @ Ta[:3, :3].T, Ta[:3, 3]
+    a = d[:, 0] ** 2 + d[:, 2] ** 2
+    b = 2 * (c[0] * d[:, 0] + c[2] * d[:, 2])
+    t = (-b + np.sqrt(b * b - 4 * a * (c[0] ** 2 + c[2] ** 2 - 100.0))) / (2 * a)
+    Xw = c + d * t[:, None]
+    Tbi = np.linalg.inv(Tb)
+    Xb = Xw @ Tbi[:3, :3].T + Tbi[:3, 3]
+    uvb = Xb[:, :2] / Xb[:, 2:] * _K[[0, 1], [0, 1]] + _K[:2, 2]
+    ok = (Xb[:, 2] > 0.1) & (uvb[:, 0] >= 0) & (uvb[:, 0] < _W) & (uvb[:, 1] >= 0) & (uvb[:, 1] < _H)
+    idx = np.flatnonzero(ok)[:n]
+    uvb = uvb[idx] + rng.normal(scale=1.0, size=(len(idx), 2))
+    out = rng.random(len(idx)) < 0.05
+    uvb[out] += rng.uniform(-40, 40, (out.sum(), 2))
+    return uv[idx], t[idx], uvb
+
+
+def run_one(n: int, points: int, cfg: GraphConfig, loop_every: int = 50, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    per_lap = 100  # keyframes 3.6 degrees apart; later laps loop back to earlier ones
+    truth = [_pose(k, per_lap) for k in range(n)]
+    backend = Backend(isam_params(cfg), cfg.batch_max_iterations)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.full(6, 1e-4))
+    times, loops = [], 0
+    for k in range(n):
+        # like a tracking frontend: previous estimate composed with a noisy relative motion
+        rel = gtsam.Pose3(np.linalg.inv(truth[k - 1]) @ truth[k]) if k else gtsam.Pose3(truth[0])
+        prev = backend.estimate(keyframe_key(k - 1)) if k else gtsam.Pose3()
+        init = prev.compose(rel).retract(rng.normal(scale=0.003, size=6))
+        backend.add_value(keyframe_key(k), init)
+        if k == 0:
+            backend.add_factor(gtsam.PriorFactorPose3(keyframe_key(0), gtsam.Pose3(truth[0]), noise))
+        pairs = [k - 1, k - 2]
+        if k >= per_lap and (k - per_lap) % loop_every == loop_every - 1:
+            pairs.append(k - per_lap)
+            loops += 1
+        for j in pairs:
+            if j < 0:
+                continue
+            uv, dep, uvb = _matches(truth[j], truth[k], points, rng)
+            backend.add_factor(
+                make_flow_factor(
+                    keyframe_key(j),
+                    keyframe_key(k),
+                    uv,
+                    dep,
+                    uvb,
+                    _K,
+                    cfg.flow_sigma_px,
+                    inlier_prior=cfg.flow_inlier_prior,
+                    outlier_range_px=cfg.flow_outlier_range_px,
+                )
+            )
+        t0 = time.perf_counter()
+        backend.update()
+        times.append(time.perf_counter() - t0)
+    est = backend.values()
+    err = [np.linalg.norm(est.atPose3(keyframe_key(k)).translation() - truth[k][:3, 3]) for k in range(n)]
+    t0 = time.perf_counter()
+    backend.refine_batch()
+    t_batch = time.perf_counter() - t0
+    ms = [1e3 * t for t in times[1:]]
+    return {
+        "keyframes": n,
+        "points_per_pair": points,
+        "flow_factors": backend.num_factors - 1,
+        "loops": loops,
+        "isam2_update_ms_median": round(statistics.median(ms), 3),
+        "isam2_update_ms_p90": round(float(np.percentile(ms, 90)), 3),
+        "isam2_update_ms_max": round(max(ms), 3),
+        "isam2_position_error_max_m": round(float(max(err)), 4),
+        "batch_lm_s": round(t_batch, 3),
+    }
+
+
+def run(sizes: list[int], points: int, cfg: GraphConfig | None = None) -> dict:
+    cfg = cfg or GraphConfig()
+    return {
+        "config": {
+            k: getattr(cfg, k) for k in ("relinearize_threshold", "relinearize_skip", "wildfire_threshold")
+        },
+        "results": [run_one(n, points, cfg) for n in sizes],
+    }

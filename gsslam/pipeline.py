@@ -83,6 +83,7 @@ class Pipeline:
             self.flow, pc.track_points, pc.min_photo_consistency, pc.blank_std, use_depth=not self.monocular
         )
         self.rng = np.random.default_rng(cfg.seed)
+        cv2.setRNGSeed(cfg.seed)  # RANSAC inside OpenCV: the same run gives the same trajectory
         self.chains: list[Chain] = []
         self.events: list[Event] = []
         self.timestamps: dict[int, float] = {}
@@ -236,7 +237,7 @@ class Pipeline:
                 depth = cv2.resize(kf.depth, (self.intrinsics.width, self.intrinsics.height),
                                    interpolation=cv2.INTER_NEAREST)
                 corr = correspondences_from_flow(src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng)
-                if len(corr) >= 10 and chain.graph.add_flow(corr, self.intrinsics.K) is not None:
+                if len(corr) >= 10 and chain.graph.add_flow(corr, self.intrinsics.K, src_submap=kf.submap) is not None:
                     self.n_flow_factors += 1
 
     def _close_chain(self) -> None:

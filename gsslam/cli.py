@@ -95,7 +95,23 @@ def run_cmd(
 
     cfg = load_config(config, set_ or [], mode=mode)
     ds_kwargs = {"intrinsics_file": intrinsics} if intrinsics is not None else {}
-    result = run_sequence(path, dataset, cfg, out, max_frames=max_frames, progress=progress, **ds_kwargs)
+    bar = None
+    callback = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(unit="frame", file=sys.stderr, dynamic_ncols=True)
+
+        def callback(done: int, total: int, fps: float) -> None:
+            bar.total = total
+            bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
+            bar.update(done - bar.n)
+
+    try:
+        result = run_sequence(path, dataset, cfg, out, max_frames=max_frames, progress=callback or False, **ds_kwargs)
+    finally:
+        if bar is not None:
+            bar.close()
     _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
 
 

@@ -37,9 +37,15 @@ def run(sizes: list[int], mode: str = "rgbd") -> dict:
     cfg = LoopConfig()
     rng = np.random.default_rng(0)
     pool = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(6 * POOL_SUBMAPS + 1, 2.0), mono=False)
-    out: dict = {"mode": mode, "config": {"max_reprojection_checks": cfg.max_reprojection_checks,
-                                          "points_per_submap": cfg.points_per_submap, "orb_features": cfg.orb_features},
-                 "sizes": {}}
+    out: dict = {
+        "mode": mode,
+        "config": {
+            "max_reprojection_checks": cfg.max_reprojection_checks,
+            "points_per_submap": cfg.points_per_submap,
+            "orb_features": cfg.orb_features,
+        },
+        "sizes": {},
+    }
     for n in sorted(sizes):
         det = LoopDetector(cfg, mode=mode)
         poses: dict[int, np.ndarray] = {}

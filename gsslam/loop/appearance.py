@@ -40,7 +40,9 @@ def appearance_overlap(desc_a: np.ndarray, desc_b: np.ndarray) -> np.ndarray:
     return np.clip(desc_a @ desc_b.T, 0.0, 1.0)
 
 
-def orb_features(gray: np.ndarray, points_cam: np.ndarray, T_local_cam: np.ndarray, n_features: int) -> ViewFeatures:
+def orb_features(
+    gray: np.ndarray, points_cam: np.ndarray, T_local_cam: np.ndarray, n_features: int
+) -> ViewFeatures:
     """ORB keypoints of one keyframe lifted to submap-local 3D by its point map.
 
     ``gray``: [H, W] image (any resolution with the point map's aspect ratio); ``points_cam``:
@@ -52,7 +54,9 @@ def orb_features(gray: np.ndarray, points_cam: np.ndarray, T_local_cam: np.ndarr
     up = max(1.0, ORB_MIN_SIDE / img.shape[1])
     if up > 1.0:
         img = cv2.resize(img, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
-    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=15, patchSize=15, fastThreshold=10)
+    orb = cv2.ORB_create(
+        nfeatures=n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=15, patchSize=15, fastThreshold=10
+    )
     kps, desc = orb.detectAndCompute(img, None)
     if desc is None or len(kps) == 0:
         return ViewFeatures(np.zeros((0, 2)), np.zeros((0, 32), np.uint8), np.zeros((0, 3)))

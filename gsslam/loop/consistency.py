@@ -32,7 +32,9 @@ log = logging.getLogger(__name__)
 def relative(poses: Mapping[int, np.ndarray], i: int, m: int) -> np.ndarray:
     """``T_i_m`` of the estimate: submap-m local -> submap-i local."""
     if i not in poses or m not in poses:
-        raise LoopError(f"no world transform for submap {i if i not in poses else m}; pass every submap's T_world_local")
+        raise LoopError(
+            f"no world transform for submap {i if i not in poses else m}; pass every submap's T_world_local"
+        )
     return invert_T(poses[i]) @ poses[m]
 
 
@@ -86,13 +88,21 @@ def check_loops(
         r = loop_residual(loop, T_est) / max(loop.threshold, 1e-12)
         rot = rotation_deg(T_est, loop.T_i_m)
         if r > cfg.max_residual_factor or rot > cfg.max_rot_discrepancy_deg:
-            log.info("loop %d-%d rejected after optimisation: residual %.1f x threshold, rotation %.1f deg", loop.i, loop.m, r, rot)
+            log.info(
+                "loop %d-%d rejected after optimisation: residual %.1f x threshold, rotation %.1f deg",
+                loop.i,
+                loop.m,
+                r,
+                rot,
+            )
             bad.append((r, handle))
     bad.sort(key=lambda x: -x[0])
     return [h for _, h in bad]
 
 
-def reject_inconsistent(loops: Mapping[Hashable, LoopConstraint], odometry: Mapping[int, np.ndarray], cfg: LoopConfig) -> list[Hashable]:
+def reject_inconsistent(
+    loops: Mapping[Hashable, LoopConstraint], odometry: Mapping[int, np.ndarray], cfg: LoopConfig
+) -> list[Hashable]:
     """Greedily drop the loop with the most conflicts while it conflicts with at least half the rest."""
     live = dict(loops)
     out = []
@@ -103,7 +113,12 @@ def reject_inconsistent(loops: Mapping[Hashable, LoopConstraint], odometry: Mapp
             break
         if len(live) == 2:  # two loops disagree: keep the better supported one
             worst = min(live, key=lambda h: len(live[h]) * live[h].inlier_ratio)
-        log.info("loop %d-%d rejected: inconsistent with %d other loops", live[worst].i, live[worst].m, len(conf[worst]))
+        log.info(
+            "loop %d-%d rejected: inconsistent with %d other loops",
+            live[worst].i,
+            live[worst].m,
+            len(conf[worst]),
+        )
         out.append(worst)
         del live[worst]
     return out
@@ -139,7 +154,11 @@ def pairwise_conflicts(
             T_mb_ma, len_m = chain(odometry, b.m, a.m)
             pred = T_ia_ib @ b.T_i_m @ T_mb_ma  # T_ia_ma predicted by loop b
             s_b = split_sim3(T_ia_ib)[2]  # submap-b units -> submap-a units
-            bound = cfg.max_drift_ratio * (len_i + s_b * split_sim3(b.T_i_m)[2] * len_m) + a.threshold + s_b * b.threshold
+            bound = (
+                cfg.max_drift_ratio * (len_i + s_b * split_sim3(b.T_i_m)[2] * len_m)
+                + a.threshold
+                + s_b * b.threshold
+            )
             if loop_residual(a, pred) > bound or rotation_deg(pred, a.T_i_m) > cfg.max_rot_discrepancy_deg:
                 out[ha].add(hb)
                 out[hb].add(ha)

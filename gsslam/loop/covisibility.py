@@ -33,11 +33,20 @@ def make_record(
     """Compress one submap to what detection and verification need (bounded size)."""
     V, h, w = enc.points_cam.shape[:3]
     if len(images) != V:
-        raise LoopError(f"submap {submap_id}: {len(images)} keyframe images for {V} point maps; give one per keyframe")
+        raise LoopError(
+            f"submap {submap_id}: {len(images)} keyframe images for {V} point maps; give one per keyframe"
+        )
     scale = min(1.0, DEPTH_SMALL_MAX_SIDE / max(h, w))
     intr = enc.intrinsics.scaled(scale) if scale < 1.0 else enc.intrinsics
     depth_small = np.stack(
-        [cv2.resize(enc.points_cam[v, ..., 2].astype(np.float32), (intr.width, intr.height), interpolation=cv2.INTER_NEAREST) for v in range(V)]
+        [
+            cv2.resize(
+                enc.points_cam[v, ..., 2].astype(np.float32),
+                (intr.width, intr.height),
+                interpolation=cv2.INTER_NEAREST,
+            )
+            for v in range(V)
+        ]
     )
     valid = np.isfinite(enc.points_cam).all(axis=-1) & (enc.points_cam[..., 2] > 0)  # [V, h, w]
     vv, yy, xx = np.nonzero(valid)
@@ -51,7 +60,9 @@ def make_record(
     center = X.mean(axis=0)
     cams = enc.T_local_cam[:, :3, 3]
     radius = float(max(np.linalg.norm(X - center, axis=1).max(), np.linalg.norm(cams - center, axis=1).max()))
-    feats = tuple(orb_features(images[v], enc.points_cam[v], enc.T_local_cam[v], n_features) for v in range(V))
+    feats = tuple(
+        orb_features(images[v], enc.points_cam[v], enc.T_local_cam[v], n_features) for v in range(V)
+    )
     return SubmapRecord(
         submap_id=submap_id,
         frame_indices=tuple(int(f) for f in enc.frame_indices),

@@ -21,8 +21,8 @@ from collections.abc import Hashable, Mapping
 import numpy as np
 
 from gsslam.config import LoopConfig
-from gsslam.loop.appearance import appearance_overlap
 from gsslam.geometry import invert_T
+from gsslam.loop.appearance import appearance_overlap
 from gsslam.loop.consistency import check_loops, drift_gate, reject_inconsistent
 from gsslam.loop.covisibility import make_record, reprojection_overlap, spheres_intersect, world_sphere
 from gsslam.loop.types import LoopCandidate, LoopConstraint, LoopError, LoopStats, SubmapRecord
@@ -64,7 +64,9 @@ class LoopDetector:
             raise LoopError(f"submap {submap_id} was already added to the loop detector")
         if self._ids and submap_id < self._ids[-1]:
             raise LoopError(f"submap ids must increase: got {submap_id} after {self._ids[-1]}")
-        rec = make_record(submap_id, enc, np.asarray(images), self.cfg.points_per_submap, self.cfg.orb_features, self._rng)
+        rec = make_record(
+            submap_id, enc, np.asarray(images), self.cfg.points_per_submap, self.cfg.orb_features, self._rng
+        )
         self._records[submap_id] = rec
         self._ids.append(submap_id)
         self._app.append(rec.appearance)
@@ -93,7 +95,9 @@ class LoopDetector:
         ks = [old[j] for j in np.nonzero(near)[0]]
         # 2. appearance: best view pair per candidate, one matrix product
         V = len(rec_i.appearance)
-        app_all = appearance_overlap(rec_i.appearance, np.concatenate([self._app[k] for k in ks]))  # [V, sum V_m]
+        app_all = appearance_overlap(
+            rec_i.appearance, np.concatenate([self._app[k] for k in ks])
+        )  # [V, sum V_m]
         splits = np.cumsum([len(self._app[k]) for k in ks])[:-1]
         app = np.array([blk.max() for blk in np.split(app_all, splits, axis=1)]) if V else np.zeros(len(ks))
         order = np.argsort(-app)[: cfg.max_reprojection_checks]
@@ -101,12 +105,16 @@ class LoopDetector:
         out = []
         for j in order:
             m = self._ids[ks[j]]
-            ratio, counts = reprojection_overlap(rec_i, poses[i], self._records[m], poses[m], cfg.depth_tolerance_rel)
+            ratio, counts = reprojection_overlap(
+                rec_i, poses[i], self._records[m], poses[m], cfg.depth_tolerance_rel
+            )
             score = W_POINTS * ratio + W_APPEARANCE * float(app[j])
             if ratio <= cfg.min_overlap or score <= cfg.min_score:
                 continue
             flat = np.argsort(-counts, axis=None)
-            pairs = tuple((int(a), int(b)) for a, b in zip(*np.unravel_index(flat, counts.shape)) if counts[a, b] > 0)
+            pairs = tuple(
+                (int(a), int(b)) for a, b in zip(*np.unravel_index(flat, counts.shape)) if counts[a, b] > 0
+            )
             out.append(LoopCandidate(i, m, ratio, float(app[j]), score, pairs))
         out.sort(key=lambda c: -c.score)
         return out[: cfg.max_candidates]
@@ -130,15 +138,30 @@ class LoopDetector:
                 continue
             self.stats.detected += 1
             ok, why = drift_gate(loop, poses, self.cfg)
-            entry = {"i": i, "m": cand.m, "score": round(cand.score, 3), "overlap": round(cand.point_overlap, 3),
-                     "inliers": len(loop), "inlier_ratio": round(loop.inlier_ratio, 3), "accepted": ok, "why": why}
+            entry = {
+                "i": i,
+                "m": cand.m,
+                "score": round(cand.score, 3),
+                "overlap": round(cand.point_overlap, 3),
+                "inliers": len(loop),
+                "inlier_ratio": round(loop.inlier_ratio, 3),
+                "accepted": ok,
+                "why": why,
+            }
             self.stats.log.append(entry)
             if not ok:
                 self.stats.rejected += 1
                 log.info("loop %d-%d refused by the drift gate: %s", i, cand.m, why)
                 continue
             self.stats.accepted += 1
-            log.info("loop %d-%d accepted: %d inliers (%.0f%%), score %.2f", i, cand.m, len(loop), 100 * loop.inlier_ratio, cand.score)
+            log.info(
+                "loop %d-%d accepted: %d inliers (%.0f%%), score %.2f",
+                i,
+                cand.m,
+                len(loop),
+                100 * loop.inlier_ratio,
+                cand.score,
+            )
             accepted.append(loop)
         self.stats.detect_seconds += time.perf_counter() - t0
         self.stats.submaps_checked += 1
@@ -150,7 +173,9 @@ class LoopDetector:
         if i not in self.odometry and k > 0 and self._ids[k - 1] in poses and i in poses:
             self.odometry[i] = invert_T(poses[self._ids[k - 1]]) @ poses[i]
 
-    def check_loops(self, loops: Mapping[Hashable, LoopConstraint], poses: Mapping[int, np.ndarray]) -> list[Hashable]:
+    def check_loops(
+        self, loops: Mapping[Hashable, LoopConstraint], poses: Mapping[int, np.ndarray]
+    ) -> list[Hashable]:
         """Handles of loops to remove after a graph update, worst first.
 
         ``loops``: handle -> constraint for every loop currently in the graph; ``poses``: the

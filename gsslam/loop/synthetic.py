@@ -35,7 +35,9 @@ class TexturedRoom:
     def cast(self, K: np.ndarray, T_world_cam: np.ndarray, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
         """Ray-cast one view: (gray [h, w] float32, z-depth [h, w] float64)."""
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(-1, 3)
+        d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(
+            -1, 3
+        )
         R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
         d = d_cam @ R.T  # [P, 3], z_cam = 1 so the ray parameter t is the z-depth
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -63,10 +65,15 @@ def look_pose(position: np.ndarray, yaw: float, pitch: float = 0.0) -> np.ndarra
     return make_T(R, position)
 
 
-def circle_trajectory(n_keyframes: int, turns: float, radius: float = 1.2, outward: float = 0.0) -> np.ndarray:
+def circle_trajectory(
+    n_keyframes: int, turns: float, radius: float = 1.2, outward: float = 0.0
+) -> np.ndarray:
     """[N, 4, 4] poses on a horizontal circle looking outward (+ ``outward`` yaw offset)."""
     th = np.linspace(0.0, 2 * np.pi * turns, n_keyframes)
-    poses = [look_pose(np.array([radius * np.sin(a), 0.1 * np.sin(3 * a), radius * np.cos(a)]), a + outward) for a in th]
+    poses = [
+        look_pose(np.array([radius * np.sin(a), 0.1 * np.sin(3 * a), radius * np.cos(a)]), a + outward)
+        for a in th
+    ]
     return np.stack(poses)
 
 
@@ -105,7 +112,9 @@ def make_submaps(
     (radians / metres); mono submaps also get a log-scale drift of ``drift_noise``.
     """
     rng = np.random.default_rng(seed)
-    intr = CameraIntrinsics(fx=0.75 * width, fy=0.75 * width, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height)
+    intr = CameraIntrinsics(
+        fx=0.75 * width, fy=0.75 * width, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height
+    )
     K = intr.K
     n_sub = (len(T_world_cam) - 1) // K_frames
     encs, imgs, gt, est = [], [], [], []

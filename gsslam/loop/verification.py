@@ -23,7 +23,9 @@ log = logging.getLogger(__name__)
 _MATCHER = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
 
-def match_3d(rec_i: SubmapRecord, rec_m: SubmapRecord, view_pairs: tuple[tuple[int, int], ...]) -> tuple[np.ndarray, np.ndarray]:
+def match_3d(
+    rec_i: SubmapRecord, rec_m: SubmapRecord, view_pairs: tuple[tuple[int, int], ...]
+) -> tuple[np.ndarray, np.ndarray]:
     """Matched 3D point pairs over the given view pairs: (X_i [N, 3], X_m [N, 3]) in local frames."""
     Xi, Xm = [], []
     for a, b in view_pairs:
@@ -110,12 +112,21 @@ def verify(
     """RANSAC-verify one candidate; ``None`` when too few or too inconsistent matches."""
     X_i, X_m = match_3d(rec_i, rec_m, cand.view_pairs[: cfg.verify_view_pairs])
     thr = inlier_threshold(rec_i, cfg, mode)
-    T, inl = ransac_transform(X_i, X_m, thr, with_scale=(mode == "mono"), iterations=cfg.ransac_iterations, rng=rng)
+    T, inl = ransac_transform(
+        X_i, X_m, thr, with_scale=(mode == "mono"), iterations=cfg.ransac_iterations, rng=rng
+    )
     n_inl = int(inl.sum())
     ratio = n_inl / max(1, len(X_i))
     log.debug("loop %d-%d: %d matches, %d inliers (%.2f)", cand.i, cand.m, len(X_i), n_inl, ratio)
     if T is None or n_inl < cfg.min_inliers or ratio < cfg.min_inlier_ratio:
         return None
     return LoopConstraint(
-        i=cand.i, m=cand.m, X_i=X_i[inl], X_m=X_m[inl], T_i_m=T, inlier_ratio=ratio, score=cand.score, threshold=thr
+        i=cand.i,
+        m=cand.m,
+        X_i=X_i[inl],
+        X_m=X_m[inl],
+        T_i_m=T,
+        inlier_ratio=ratio,
+        score=cand.score,
+        threshold=thr,
     )

@@ -24,7 +24,9 @@ def _sim3_matrix(S: gtsam.Similarity3) -> np.ndarray:
     return M / M[3, 3]
 
 
-def optimise(est: dict[int, np.ndarray], loops: dict, mono: bool, loop_sigma: float = 0.002) -> dict[int, np.ndarray]:
+def optimise(
+    est: dict[int, np.ndarray], loops: dict, mono: bool, loop_sigma: float = 0.002
+) -> dict[int, np.ndarray]:
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     ids = sorted(est)
@@ -32,7 +34,12 @@ def optimise(est: dict[int, np.ndarray], loops: dict, mono: bool, loop_sigma: fl
         dim, wrap, between, prior = 7, _sim3, gtsam.BetweenFactorSimilarity3, gtsam.PriorFactorSimilarity3
         insert, get = values.insert, lambda v, k: _sim3_matrix(v.atSimilarity3(k))
     else:
-        dim, wrap, between, prior = 6, lambda T: gtsam.Pose3(T), gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3
+        dim, wrap, between, prior = (
+            6,
+            lambda T: gtsam.Pose3(T),
+            gtsam.BetweenFactorPose3,
+            gtsam.PriorFactorPose3,
+        )
         insert, get = values.insert, lambda v, k: v.atPose3(k).matrix()
     odo = gtsam.noiseModel.Isotropic.Sigma(dim, 0.01)
     lp = gtsam.noiseModel.Isotropic.Sigma(dim, loop_sigma)

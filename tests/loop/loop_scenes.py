@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from gsslam.config import LoopConfig
-from gsslam.loop import LoopDetector
+from gsslam.geometry import make_T, so3_exp, transform_points
+from gsslam.loop import LoopConstraint, LoopDetector
 from gsslam.loop.synthetic import TexturedRoom, circle_trajectory, line_trajectory, make_submaps
 
 # 10 submaps of K=6 over 1.2 turns of a circle looking outward at the walls of a textured room:
@@ -47,3 +48,16 @@ def corridor():
 
 def gt_relative(sm, i: int, m: int) -> np.ndarray:
     return np.linalg.inv(sm.T_world_local_gt[i]) @ sm.T_world_local_gt[m]
+
+
+def wrong_loop(sm, det, i=6, m=2, yaw_deg=25.0, shift=(1.0, 0.0, 0.5)):
+    """A loop 6-2 (these submaps do not see the same walls) with a transform 25 deg / 1.1 m off
+    the truth, on 100 of submap m's points: what perceptual aliasing would produce."""
+    rec = det.record(m)
+    unit = rec.median_depth / det.record(0).median_depth if det.mode == "mono" else 1.0
+    T_bad = gt_relative(sm, i, m) @ make_T(
+        so3_exp(np.array([0.0, np.radians(yaw_deg), 0.0])), np.array(shift) * unit
+    )
+    X_m = rec.points_local[:100]
+    thr = 0.05 if det.mode == "rgbd" else det.cfg.inlier_threshold_rel * det.record(i).median_depth
+    return LoopConstraint(i, m, transform_points(T_bad, X_m), X_m, T_bad, 0.9, 0.9, thr)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from loop_graph import ate, keyframe_positions, optimise
-from loop_scenes import gt_relative
+from loop_scenes import wrong_loop
 
 from gsslam.geometry import invert_T, make_T, so3_exp, transform_points
-from gsslam.loop import LoopConstraint, drift_gate, propagate_correction
+from gsslam.loop import drift_gate, propagate_correction
 from gsslam.loop.consistency import chain, relative
 
 
@@ -17,23 +17,12 @@ def _random_sim3(rng, scale=True):
     return make_T(so3_exp(rng.normal(size=3)), rng.normal(size=3), s)
 
 
-def _wrong_loop(sm, det, i=6, m=2, yaw_deg=25.0, shift=(1.0, 0.0, 0.5)):
-    """A loop 6-2 (these submaps do not see the same walls) with a transform 25 deg / 1.1 m off
-    the truth, on 100 of submap m's points: what perceptual aliasing would produce."""
-    rec = det.record(m)
-    unit = rec.median_depth / det.record(0).median_depth if det.mode == "mono" else 1.0
-    T_bad = gt_relative(sm, i, m) @ make_T(so3_exp(np.array([0.0, np.radians(yaw_deg), 0.0])), np.array(shift) * unit)
-    X_m = rec.points_local[:100]
-    thr = 0.05 if det.mode == "rgbd" else det.cfg.inlier_threshold_rel * det.record(i).median_depth
-    return LoopConstraint(i, m, transform_points(T_bad, X_m), X_m, T_bad, 0.9, 0.9, thr)
-
-
 @pytest.mark.parametrize("name", ["revisit_rgbd", "revisit_mono"])
 def test_true_loops_pass_the_gate_wrong_loop_does_not(name, request):
     sm, det, est, loops = request.getfixturevalue(name)
     for loop in loops.values():
         assert drift_gate(loop, est, det.cfg)[0]
-    ok, why = drift_gate(_wrong_loop(sm, det), est, det.cfg)
+    ok, why = drift_gate(wrong_loop(sm, det), est, det.cfg)
     assert not ok and "path" in why
 
 
@@ -44,7 +33,7 @@ def test_wrong_loop_in_graph_is_rejected_after_optimisation(name, request):
     sm, det, est, loops = request.getfixturevalue(name)
     mono = name.endswith("mono")
     assert det.check_loops(loops, optimise(est, loops, mono, loop_sigma=0.005)) == []
-    with_bad = dict(loops, bad=_wrong_loop(sm, det))
+    with_bad = dict(loops, bad=wrong_loop(sm, det))
     poses = optimise(est, with_bad, mono, loop_sigma=0.005)
     gt = keyframe_positions(dict(enumerate(sm.T_world_local_gt)), sm.encodings)
     ate_bad = ate(keyframe_positions(poses, sm.encodings), gt, mono)

@@ -29,7 +29,7 @@ from torch import Tensor
 _log = logging.getLogger(__name__)
 
 _SOURCE = Path(__file__).with_name("rasterize_cpu.c")
-_FLAGS = ["-O3", "-fPIC", "-std=c99"]
+_FLAGS = ["-O3", "-fPIC", "-std=gnu99", "-ffp-contract=off", "-pthread"]
 _VARIANTS = {torch.float32: ("f32", "float", "expf"), torch.float64: ("f64", "double", "exp")}
 _lib: ctypes.CDLL | None = None
 _load_failed = False
@@ -60,7 +60,7 @@ def _build(cc: str, target: Path) -> None:
                            capture_output=True, text=True)
             objs.append(str(obj))
         out = Path(tmp) / target.name
-        subprocess.run([cc, "-shared", *objs, "-o", str(out), "-lm"], check=True, capture_output=True, text=True)
+        subprocess.run([cc, "-shared", "-pthread", *objs, "-o", str(out), "-lm"], check=True, capture_output=True, text=True)
         os.replace(out, target)  # atomic: concurrent builders never see a half-written library
 
 
@@ -98,14 +98,14 @@ def _load() -> ctypes.CDLL | None:
 def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
     for tag, _, _ in _VARIANTS.values():
-        getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p]
+        getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, i32]
         getattr(lib, f"count_pairs_{tag}").restype = i64
-        getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p]
+        getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p, i32]
         getattr(lib, f"fill_pairs_{tag}").restype = None
-        getattr(lib, f"composite_forward_{tag}").argtypes = [i32, i32, i32, p, p, p, p, p, p, p]
+        getattr(lib, f"composite_forward_{tag}").argtypes = [i32, i32, i32, p, p, p, p, p, p, p, i32]
         getattr(lib, f"composite_forward_{tag}").restype = None
-        getattr(lib, f"composite_backward_{tag}").argtypes = [i32] * 3 + [p] * 15
-        getattr(lib, f"composite_backward_{tag}").restype = None
+        getattr(lib, f"composite_backward_{tag}").argtypes = [i32, i32, i32, i64] + [p] * 15 + [i32]
+        getattr(lib, f"composite_backward_{tag}").restype = i32
 
 
 def available(t: Tensor) -> bool:
@@ -129,22 +129,23 @@ class _CompositeCPU(torch.autograd.Function):
         rad = radii.to(torch.int64).contiguous()
         n, f = feat.shape
         P = width * height
+        threads = torch.get_num_threads()
         order = torch.sort(depths.detach(), stable=True).indices.contiguous()
         counts = torch.empty(P, dtype=torch.int32)
         total = getattr(lib, f"count_pairs_{tag}")(n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad),
-                                                   _ptr(counts))
+                                                   _ptr(counts), threads)
         offsets = torch.zeros(P + 1, dtype=torch.int64)
         torch.cumsum(counts, 0, out=offsets[1:])
         cursor = torch.empty(P, dtype=torch.int64)
         pair_gid = torch.empty(total, dtype=torch.int32)
         pair_alpha = torch.empty(total, dtype=dt)
         getattr(lib, f"fill_pairs_{tag}")(n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(order),
-                                          _ptr(offsets), _ptr(cursor), _ptr(pair_gid), _ptr(pair_alpha))
+                                          _ptr(offsets), _ptr(cursor), _ptr(pair_gid), _ptr(pair_alpha), threads)
         out_feat = torch.empty(P, f, dtype=dt)
         out_T = torch.empty(P, dtype=dt)
         n_used = torch.empty(P, dtype=torch.int32)
         getattr(lib, f"composite_forward_{tag}")(width, height, f, _ptr(offsets), _ptr(pair_gid), _ptr(pair_alpha),
-                                                 _ptr(feat), _ptr(out_feat), _ptr(out_T), _ptr(n_used))
+                                                 _ptr(feat), _ptr(out_feat), _ptr(out_T), _ptr(n_used), threads)
         ctx.save_for_backward(mu, con, op, feat, offsets, pair_gid, pair_alpha, out_T, n_used)
         ctx.size = (width, height)
         ctx.in_dtypes = (conics.dtype, opacities.dtype, features.dtype)
@@ -164,11 +165,13 @@ class _CompositeCPU(torch.autograd.Function):
         g_alpha_out = g_alpha_out.to(dt).contiguous()
         g_mu, g_con = torch.zeros(n, 2, dtype=dt), torch.zeros(n, 3, dtype=dt)
         g_op, g_feat = torch.zeros(n, dtype=dt), torch.zeros(n, f, dtype=dt)
-        getattr(_lib, f"composite_backward_{tag}")(
-            width, height, f, _ptr(offsets), _ptr(pair_gid), _ptr(pair_alpha), _ptr(mu), _ptr(con), _ptr(op),
+        status = getattr(_lib, f"composite_backward_{tag}")(
+            width, height, f, n, _ptr(offsets), _ptr(pair_gid), _ptr(pair_alpha), _ptr(mu), _ptr(con), _ptr(op),
             _ptr(feat), _ptr(out_T), _ptr(n_used), _ptr(g_feat_out), _ptr(g_alpha_out), _ptr(g_mu), _ptr(g_con),
-            _ptr(g_op), _ptr(g_feat),
+            _ptr(g_op), _ptr(g_feat), torch.get_num_threads(),
         )
+        if status != 0:
+            raise MemoryError("the CPU rasterizer backward could not allocate its per-thread buffers")
         dc, do, df = ctx.in_dtypes
         return g_mu, g_con.to(dc), g_op.to(do), g_feat.to(df), None, None, None, None
 

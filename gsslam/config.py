@@ -27,6 +27,7 @@ class ConfigError(GsslamError):
 class FlowConfig:
     method: str = "dis"  # "dis" | "farneback"
     dis_preset: str = "medium"  # "ultrafast" | "fast" | "medium"
+    dis_finest_scale: int = 0  # DIS pyramid level of the output (0: the downscaled image itself; -1: preset's)
     max_side: int = 320  # flow is computed on images downscaled so that max(H, W) <= this
     fb_threshold_px: float = 2.0  # forward-backward consistency threshold, in full-resolution pixels
 
@@ -47,7 +48,7 @@ class EncoderConfig:
     max_depth: float = 10.0
     pointmap_max_side: int = 320  # point maps / local estimation at max(H, W) <= this (TUM -> 320x240)
     min_inliers: int = 30  # PnP / essential-matrix inliers below this: the estimate is not trusted
-    rgbd_odometry: bool = True  # refine RGB-D poses with open3d's hybrid (photometric + depth) odometry
+    rgbd_odometry: bool = False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
 
 

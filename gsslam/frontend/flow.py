@@ -101,16 +101,19 @@ class _ResizingFlow:
 class DISFlow(_ResizingFlow):
     """OpenCV Dense Inverse Search flow (Kroeger et al., ECCV 2016), preset ultrafast/fast/medium."""
 
-    def __init__(self, preset: str = "medium", max_side: int = 320) -> None:
+    def __init__(self, preset: str = "medium", max_side: int = 320, finest_scale: int = 0) -> None:
         super().__init__(max_side)
         if preset not in _DIS_PRESETS:
             raise FlowError(f"unknown DIS preset {preset!r}; choose one of {sorted(_DIS_PRESETS)}")
         self.preset = preset
+        self.finest_scale = finest_scale
 
     def _compute(self, g0: np.ndarray, g1: np.ndarray, init: np.ndarray | None) -> np.ndarray:
         # A fresh DIS object per call (cheap): OpenCV's keeps state after a call with an initial
         # flow, which changes later results. DIS starts from the flow passed as output argument.
         dis = cv2.DISOpticalFlow_create(_DIS_PRESETS[self.preset])
+        if self.finest_scale >= 0:  # the presets stop at level 1 or 2 (half/quarter resolution)
+            dis.setFinestScale(self.finest_scale)
         return dis.calc(g0, g1, None if init is None else np.ascontiguousarray(init, dtype=np.float32))
 
 
@@ -125,7 +128,7 @@ class FarnebackFlow(_ResizingFlow):
 
 
 _FACTORIES: dict[str, Callable[[FlowConfig], FlowEstimator]] = {
-    "dis": lambda cfg: DISFlow(cfg.dis_preset, cfg.max_side),
+    "dis": lambda cfg: DISFlow(cfg.dis_preset, cfg.max_side, cfg.dis_finest_scale),
     "farneback": lambda cfg: FarnebackFlow(cfg.max_side),
 }
 
@@ -151,8 +154,8 @@ def sample_bilinear(img: np.ndarray, coords: np.ndarray) -> np.ndarray:
     """``img`` [H, W, C] or [H, W] sampled at ``coords`` [..., 2] (u, v); NaN outside the image."""
     src = np.asarray(img, dtype=np.float32)
     c = coords.astype(np.float32)
-    out = cv2.remap(src, c[..., 0], c[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=np.nan)
+    # replicate (not NaN) borders: a NaN neighbour with weight 0 would still poison edge pixels
+    out = cv2.remap(src, c[..., 0], c[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     H, W = src.shape[:2]
     inside = (c[..., 0] >= 0) & (c[..., 0] <= W - 1) & (c[..., 1] >= 0) & (c[..., 1] <= H - 1)
     out = out.astype(np.float32)

@@ -58,7 +58,7 @@ class GraphConfig:
     flow_inlier_prior: float = 0.9  # inlier probability of the robust flow likelihood
     flow_outlier_range_px: float = 50.0  # width of the uniform outlier density
     scale_sigma: float = 0.05  # std of the log-scale drift factor
-    adjacency_sigma_m: float = 0.02
+    adjacency_sigma_m: float = 0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
     loop_sigma_m: float = 0.05
     depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
     prior_rot_sigma: float = 1e-4

@@ -107,25 +107,28 @@ def project_gaussians(
     lim_y_pos, lim_y_neg = (height - cy) / fy + 0.3 * tan_y, cy / fy + 0.3 * tan_y
     tx = z_safe * torch.minimum(torch.maximum(x * inv_z, -lim_x_neg), lim_x_pos)
     ty = z_safe * torch.minimum(torch.maximum(y * inv_z, -lim_y_neg), lim_y_pos)
-    zero = torch.zeros_like(z)
-    J = torch.stack(
-        [fx * inv_z, zero, -fx * tx * inv_z * inv_z, zero, fy * inv_z, -fy * ty * inv_z * inv_z], dim=-1
-    ).reshape(-1, 2, 3)
+    # rows of J W (J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]], W = R_cw), written out
+    # elementwise: batched 3x3 matmuls are slow on CPU for large N
+    jw0 = (fx * inv_z)[:, None] * R_cw[0] - (fx * tx * inv_z * inv_z)[:, None] * R_cw[2]  # [N, 3]
+    jw1 = (fy * inv_z)[:, None] * R_cw[1] - (fy * ty * inv_z * inv_z)[:, None] * R_cw[2]  # [N, 3]
 
     R_g = quat_to_rotmat(quats)  # [N, 3, 3] world <- gaussian
-    M = R_g * scales[:, None, :]  # R S
-    cov3d = M @ M.transpose(1, 2)  # [N, 3, 3] world
-    JW = J @ R_cw  # [N, 2, 3]
-    cov2d = JW @ cov3d @ JW.transpose(1, 2)
-    cov2d = cov2d + LOW_PASS * torch.eye(2, dtype=dtype, device=means.device)
-
-    a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
+    # Sigma2d = (J W R S)(J W R S)^T; rows of A = J W R S:
+    A0 = (jw0[:, :, None] * R_g).sum(1) * scales  # [N, 3]
+    A1 = (jw1[:, :, None] * R_g).sum(1) * scales  # [N, 3]
+    a = (A0 * A0).sum(-1) + LOW_PASS
+    b = (A0 * A1).sum(-1)
+    c = (A1 * A1).sum(-1) + LOW_PASS
+    cov2d = torch.stack([a, b, b, c], dim=-1).reshape(-1, 2, 2)
     det = (a * c - b * b).clamp_min(1e-12)
     conics = torch.stack([c / det, -b / det, a / det], dim=-1)
 
     # shortest axis, rotated into the camera frame, flipped to face the camera
-    k = scales.detach().argmin(dim=-1)
-    n_world = torch.gather(R_g, 2, k[:, None, None].expand(-1, 3, 1)).squeeze(-1)  # [N, 3]
+    sd = scales.detach()
+    m0 = (sd[:, 0] <= sd[:, 1]) & (sd[:, 0] <= sd[:, 2])
+    m1 = ~m0 & (sd[:, 1] <= sd[:, 2])
+    onehot = torch.stack([m0, m1, ~(m0 | m1)], dim=-1).to(dtype)  # [N, 3] first smallest axis
+    n_world = (R_g * onehot[:, None, :]).sum(-1)  # [N, 3]
     n_cam = n_world @ R_cw.T
     facing = torch.where((n_cam * p_cam).sum(-1, keepdim=True).detach() > 0, -1.0, 1.0).to(dtype)
     normals = n_cam * facing

@@ -117,7 +117,12 @@ class SubmapGraph:
             idx = _even_subsample(np.flatnonzero(ok), cfg.adjacency_max_points)
             if len(idx) >= 3:
                 Xa_local = Xa[idx] @ Z[:3, :3].T + Z[:3, 3]
-                self.backend.add_factor(make_point_factor(a, b, Xa_local, Xb[idx], cfg.adjacency_sigma_m))
+                # adjacency_sigma_m is the std of the pair's aggregate (mean) misalignment: the N points
+                # of one shared frame are not N independent measurements of the submap transform (they
+                # come from the same local poses), so each point gets sigma * sqrt(N). Per-point sigmas
+                # made the chain so stiff that loops could not bend it (see docs/graph.md).
+                sigma = cfg.adjacency_sigma_m * np.sqrt(len(idx))
+                self.backend.add_factor(make_point_factor(a, b, Xa_local, Xb[idx], sigma))
         else:
             log.warning("submap %d: point maps of the shared frame differ in size; no adjacency points", i)
         if not self.monocular:

@@ -13,7 +13,7 @@ from gsslam.types import Correspondences
 
 # The synthetic encoder drifts ~2 % in scale per submap: its shared-frame points are trusted to
 # 0.1 world units (50 per pair), a verified loop to 0.02.
-CFG = GraphConfig(adjacency_sigma_m=0.1, adjacency_max_points=50, loop_sigma_m=0.02)
+CFG = GraphConfig()
 N_SUB = 50
 
 

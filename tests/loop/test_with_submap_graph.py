@@ -65,3 +65,34 @@ def test_loops_through_submap_graph():
     graph.update()
     poses_fixed = {k: graph.submap_pose(k) for k in range(graph.num_submaps)}
     assert det.check_loops(loops, poses_fixed) == []
+
+
+def _submap_ate(graph, sm) -> float:
+    from gsslam.eval.ate import ate_from_pairs
+
+    est = np.array([graph.submap_pose(k)[:3, 3] for k in range(graph.num_submaps)])
+    gt = np.array([sm.T_world_local_gt[k][:3, 3] for k in range(graph.num_submaps)])
+    return ate_from_pairs(gt, est, "se3").stats.rmse
+
+
+def test_loop_closure_through_submap_graph_cuts_ate_with_default_weights():
+    sm = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(61, 1.2), mono=False, seed=0)
+    encs = _drifted_encodings(sm, np.random.default_rng(0))
+    results = {}
+    for loops_on in (False, True):
+        graph = submap_graph.SubmapGraph(GraphConfig(), monocular=False)
+        det = LoopDetector(LoopConfig(enabled=loops_on), mode="rgbd")
+        for s, enc in enumerate(encs):
+            graph.add_submap(enc)
+            graph.update()
+            det.add_submap(s, enc, sm.images[s])
+            found = det.detect(s, {k: graph.submap_pose(k) for k in range(graph.num_submaps)})
+            for lc in found:
+                graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m)
+            if found:
+                graph.update()
+        graph.update(extra_iterations=5)
+        results[loops_on] = (_submap_ate(graph, sm), det.stats.to_dict())
+    (ate_without, _), (ate_with, stats) = results[False], results[True]
+    assert ate_without > 0.05  # the injected drift is visible
+    assert ate_with <= ate_without / 3, (ate_without, ate_with, stats)

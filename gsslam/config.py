@@ -98,6 +98,8 @@ class MapperConfig:
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
     lr_pose: float = 1e-3  # Adam step of the keyframe se(3) pose deltas (rad, world units)
+    pose_iterations: int = 20  # pose-only refinement of each new keyframe against the frozen map
+    lr_pose_init: float = 2e-3  # Adam step of that pose-only refinement
     init_stride: int = 2  # new Gaussians from every init_stride-th pixel (mapper resolution)
     init_opacity: float = 0.7
     min_confidence: float = 0.1  # point-map pixels below this confidence seed no Gaussians

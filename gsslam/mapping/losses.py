@@ -29,28 +29,33 @@ def l1(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None = None) -> to
     return _masked_mean((a - b).abs(), mask)
 
 
-def _gaussian_window(size: int, sigma: float, channels: int, device, dtype) -> torch.Tensor:
+def _gaussian_1d(size: int, sigma: float, device, dtype) -> torch.Tensor:
     x = torch.arange(size, device=device, dtype=dtype) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
-    g = g / g.sum()
-    return (g[:, None] * g[None, :]).expand(channels, 1, size, size).contiguous()
+    return g / g.sum()
 
 
 def ssim_map(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Per-pixel SSIM (Wang et al. 2004) of images a, b [H, W, 3] in [0, 1] -> [H, W] (channel mean)."""
+    """Per-pixel SSIM (Wang et al. 2004) of images a, b [H, W, 3] in [0, 1] -> [H, W] (channel mean).
+
+    Gaussian window (separable, replicate padding); the five local moments are blurred in one pass.
+    """
     c = a.shape[-1]
-    x = a.permute(2, 0, 1)[None]
-    y = b.permute(2, 0, 1)[None]
-    w = _gaussian_window(window, sigma, c, a.device, a.dtype)
+    x = a.permute(2, 0, 1)
+    y = b.permute(2, 0, 1)
+    stack = torch.cat([x, y, x * x, y * y, x * y])[None]  # [1, 5c, H, W]
+    g = _gaussian_1d(window, sigma, a.device, a.dtype)
+    n = stack.shape[1]
     pad = window // 2
-    mu_x = F.conv2d(F.pad(x, [pad] * 4, mode="replicate"), w, groups=c)
-    mu_y = F.conv2d(F.pad(y, [pad] * 4, mode="replicate"), w, groups=c)
-    sxx = F.conv2d(F.pad(x * x, [pad] * 4, mode="replicate"), w, groups=c) - mu_x**2
-    syy = F.conv2d(F.pad(y * y, [pad] * 4, mode="replicate"), w, groups=c) - mu_y**2
-    sxy = F.conv2d(F.pad(x * y, [pad] * 4, mode="replicate"), w, groups=c) - mu_x * mu_y
+    blur = F.conv2d(F.pad(stack, [pad, pad, 0, 0], mode="replicate"), g.view(1, 1, 1, -1).expand(n, 1, 1, window),
+                    groups=n)
+    blur = F.conv2d(F.pad(blur, [0, 0, pad, pad], mode="replicate"), g.view(1, 1, -1, 1).expand(n, 1, window, 1),
+                    groups=n)[0]
+    mu_x, mu_y, xx, yy, xy = blur.split(c)
+    sxx, syy, sxy = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
     c1, c2 = 0.01**2, 0.03**2
     s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2))
-    return s[0].mean(0)
+    return s.mean(0)
 
 
 def ssim(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:

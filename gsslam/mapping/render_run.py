@@ -1,0 +1,109 @@
+"""``gsslam render``: re-render a saved Gaussian map along a saved trajectory.
+
+A run folder holds ``map.ply`` (3DGS PLY, :mod:`gsslam.io.ply`), ``trajectory.tum`` (``T_world_cam``
+per frame) and ``intrinsics.yaml`` (``fx fy cx cy width height`` of the full-resolution camera, written
+with :func:`save_intrinsics`). Frames are rendered at the mapper resolution recorded in
+``config.yaml`` (``mapper.max_side``; 160 when there is no config).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import yaml
+
+from gsslam.errors import GsslamError
+from gsslam.geometry import invert_T, quat_to_rot
+from gsslam.types import CameraIntrinsics
+
+_log = logging.getLogger(__name__)
+
+
+class RenderRunError(GsslamError):
+    """A run folder lacks a file ``gsslam render`` needs, or a file is malformed."""
+
+
+def save_intrinsics(intrinsics: CameraIntrinsics, path: str | Path) -> None:
+    """Write ``intrinsics.yaml`` (pinhole, no distortion) for :func:`render_run`."""
+    i = intrinsics
+    data = {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "width": i.width, "height": i.height}
+    Path(path).write_text(yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v)
+                                          for k, v in data.items()}))
+
+
+def load_intrinsics(path: str | Path) -> CameraIntrinsics:
+    p = Path(path)
+    if not p.is_file():
+        raise RenderRunError(f"{p} not found; the run must save its camera with save_intrinsics()")
+    d = yaml.safe_load(p.read_text()) or {}
+    try:
+        return CameraIntrinsics(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]),
+                                int(d["width"]), int(d["height"]))
+    except KeyError as e:
+        raise RenderRunError(f"{p}: missing key {e}; need fx, fy, cx, cy, width, height") from None
+
+
+def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N], T_world_cam [N, 4, 4]
+    if not path.is_file():
+        raise RenderRunError(f"trajectory not found: {path}")
+    ts, poses = [], []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        v = line.split()
+        if len(v) != 8:
+            raise RenderRunError(f"{path}:{n}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v)} values")
+        x = np.array([float(a) for a in v])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = quat_to_rot(x[4:8]), x[1:4]
+        ts.append(x[0])
+        poses.append(T)
+    return np.array(ts), np.array(poses).reshape(-1, 4, 4)
+
+
+def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int:
+    """Render every ``every``-th pose of ``run_dir/trajectory.tum`` into ``out_dir``; returns the count.
+
+    Each PNG is ``render | depth`` (turbo colour map, black where the map is empty).
+    """
+    from gsslam.io.ply import read_ply
+    from gsslam.mapping.gaussians import SH_C0
+    from gsslam.mapping.rasterize import render
+
+    run_dir, out_dir = Path(run_dir), Path(out_dir)
+    if every < 1:
+        raise RenderRunError(f"--every must be >= 1, got {every}")
+    g = read_ply(run_dir / "map.ply")
+    intr = load_intrinsics(run_dir / "intrinsics.yaml")
+    ts, poses = _read_tum(run_dir / "trajectory.tum")
+    max_side = 160
+    cfg_path = run_dir / "config.yaml"
+    if cfg_path.is_file():
+        max_side = int(((yaml.safe_load(cfg_path.read_text()) or {}).get("mapper") or {}).get("max_side", 160))
+    intr = intr.scaled(min(1.0, max_side / max(intr.width, intr.height)))
+    K = torch.tensor(intr.K, dtype=torch.float32)
+    means = torch.as_tensor(g.means)
+    quats = torch.as_tensor(g.quats_wxyz)
+    scales = torch.exp(torch.as_tensor(g.log_scales))
+    opac = torch.sigmoid(torch.as_tensor(g.opacity_logits))
+    rgb = (0.5 + SH_C0 * torch.as_tensor(g.f_dc)).clamp(0, 1)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    count = 0
+    for i in range(0, len(poses), every):
+        T_cw = torch.as_tensor(invert_T(poses[i]), dtype=torch.float32)
+        with torch.no_grad():
+            out = render(means, quats, scales, opac, rgb, T_cw, K, intr.width, intr.height)
+        color = (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)[..., ::-1]
+        d, valid = out.depth.numpy(), out.alpha.numpy() > 0.5
+        lo, hi = np.percentile(d[valid], [2, 98]) if valid.any() else (0.0, 1.0)
+        dc = cv2.applyColorMap((np.clip((d - lo) / max(hi - lo, 1e-6), 0, 1) * 255).astype(np.uint8),
+                               cv2.COLORMAP_TURBO)
+        dc[~valid] = 0
+        cv2.imwrite(str(out_dir / f"render_{i:06d}_{ts[i]:.6f}.png"), np.concatenate([color, dc], axis=1))
+        count += 1
+    _log.info("rendered %d of %d poses (%dx%d) to %s", count, len(poses), intr.width, intr.height, out_dir)
+    return count

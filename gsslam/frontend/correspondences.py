@@ -66,8 +66,9 @@ def correspondences_from_flow(
     """
     H, W = src.image.shape[:2]
     if flow.shape != (H, W, 2):
-        raise CorrespondenceError(f"flow must be [{H}, {W}, 2] (full resolution of frame {src.index}), "
-                                  f"got {flow.shape}")
+        raise CorrespondenceError(
+            f"flow must be [{H}, {W}, 2] (full resolution of frame {src.index}), got {flow.shape}"
+        )
     if valid.shape != (H, W):
         raise CorrespondenceError(f"valid must be [{H}, {W}], got {valid.shape}")
     if max_points < 0:

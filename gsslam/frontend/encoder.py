@@ -77,11 +77,15 @@ def check_frames(frames: list[Frame], need_depth: bool) -> None:
     shape = frames[0].image.shape
     for f in frames:
         if f.image.shape != shape:
-            raise EncoderError(f"all keyframes of a submap must have one size; frame {f.index} is "
-                               f"{f.image.shape[:2]}, frame {frames[0].index} is {shape[:2]}")
+            raise EncoderError(
+                f"all keyframes of a submap must have one size; frame {f.index} is "
+                f"{f.image.shape[:2]}, frame {frames[0].index} is {shape[:2]}"
+            )
         if need_depth and f.depth is None:
-            raise EncoderError(f"frame {f.index} has no depth; the rgbd encoder needs depth for every "
-                               f"keyframe (use mode=mono for colour-only input)")
+            raise EncoderError(
+                f"frame {f.index} has no depth; the rgbd encoder needs depth for every "
+                f"keyframe (use mode=mono for colour-only input)"
+            )
 
 
 def pointmap_intrinsics(intr: CameraIntrinsics, max_side: int) -> CameraIntrinsics:

@@ -25,5 +25,7 @@ def local_pose_errors(
         den = float(np.sum(t_est * t_est))
         s = float(np.sum(t_est * t_gt) / den) if den > 1e-18 else 1.0
     t_err = np.linalg.norm(s * t_est - t_gt, axis=1)
-    r_err = np.array([np.degrees(np.linalg.norm(so3_log(e[:3, :3].T @ g[:3, :3]))) for e, g in zip(est, gt_rel)])
+    r_err = np.array(
+        [np.degrees(np.linalg.norm(so3_log(e[:3, :3].T @ g[:3, :3]))) for e, g in zip(est, gt_rel)]
+    )
     return t_err, r_err, s

@@ -66,8 +66,15 @@ class MonoEncoder:
             b = self.flow(imgs[i], imgs[i - 1])
             fw[i] = f if i == 1 else compose_flows(fw[i - 1], f)
             bw[i] = b if i == 1 else compose_flows(b, bw[i - 1])
-            valid[i] = forward_backward_mask(np.nan_to_num(fw[i], nan=1e6), np.nan_to_num(bw[i], nan=1e6),
-                                             FB_THRESHOLD_PX, relative=0.01) & tex
+            valid[i] = (
+                forward_backward_mask(
+                    np.nan_to_num(fw[i], nan=1e6),
+                    np.nan_to_num(bw[i], nan=1e6),
+                    FB_THRESHOLD_PX,
+                    relative=0.01,
+                )
+                & tex
+            )
         return fw, bw, valid
 
     # -- main ---------------------------------------------------------------------------------
@@ -97,8 +104,14 @@ class MonoEncoder:
             uv0, uvr, _ = sample_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
             res = two_view_pose(K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg)
             meta.setdefault("two_view", []).append(
-                {"frame": r, "reason": res.reason, "parallax_deg": res.median_parallax_deg,
-                 "essential_inliers": res.essential_inliers, "homography_inliers": res.homography_inliers})
+                {
+                    "frame": r,
+                    "reason": res.reason,
+                    "parallax_deg": res.median_parallax_deg,
+                    "essential_inliers": res.essential_inliers,
+                    "homography_inliers": res.homography_inliers,
+                }
+            )
             if res.T_b_a is not None:
                 tv, ref = res, r
                 break
@@ -132,8 +145,11 @@ class MonoEncoder:
             if res.T_tgt_src is None:
                 meta["pnp_failed"].append(i)
                 T_i_0[i] = T_i_0[i - 1]
-                log.warning("mono encoder: PnP failed for keyframe %d (%d inliers); copying the previous pose",
-                            frames[i].index, res.inliers)
+                log.warning(
+                    "mono encoder: PnP failed for keyframe %d (%d inliers); copying the previous pose",
+                    frames[i].index,
+                    res.inliers,
+                )
             else:
                 T_i_0[i] = res.T_tgt_src
 
@@ -155,8 +171,13 @@ class MonoEncoder:
             fill = ~np.isfinite(points[0, ..., 2]) & np.isfinite(sd)
             points[0][fill] = depth_to_points(K, sd)[fill]
             conf[0][fill] = PROPAGATED_CONFIDENCE
-        meta.update(reference_frame=ref, scale=s * g, parallax_deg=tv.median_parallax_deg,
-                    depth_stats=[robust_depth_stats(p[..., 2]) for p in points], support_points=len(X0))
+        meta.update(
+            reference_frame=ref,
+            scale=s * g,
+            parallax_deg=tv.median_parallax_deg,
+            depth_stats=[robust_depth_stats(p[..., 2]) for p in points],
+            support_points=len(X0),
+        )
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
 
     # -- dense depth --------------------------------------------------------------------------
@@ -174,20 +195,32 @@ class MonoEncoder:
                 f_ij, ok = fw[j], valid[j]
             elif j == 0:
                 f_ij = bw[i]
-                ok = forward_backward_mask(np.nan_to_num(bw[i], nan=1e6), np.nan_to_num(fw[i], nan=1e6),
-                                           FB_THRESHOLD_PX, relative=0.01) & textured_mask(imgs[i])
+                ok = forward_backward_mask(
+                    np.nan_to_num(bw[i], nan=1e6),
+                    np.nan_to_num(fw[i], nan=1e6),
+                    FB_THRESHOLD_PX,
+                    relative=0.01,
+                ) & textured_mask(imgs[i])
             else:
                 init = compose_flows(bw[i], fw[j])
                 f_ij = self.flow(imgs[i], imgs[j], init=np.nan_to_num(init))
                 f_ji = self.flow(imgs[j], imgs[i], init=np.nan_to_num(compose_flows(bw[j], fw[i])))
-                ok = forward_backward_mask(f_ij, f_ji, FB_THRESHOLD_PX, relative=0.01) & textured_mask(imgs[i])
+                ok = forward_backward_mask(f_ij, f_ji, FB_THRESHOLD_PX, relative=0.01) & textured_mask(
+                    imgs[i]
+                )
             T_j_i = invert_T(T_local[j]) @ T_local[i]
             X, par, err = triangulate_rays(K, uv, uv + np.nan_to_num(f_ij.reshape(-1, 2)), T_j_i)
-            good = (ok.reshape(-1) & np.isfinite(X).all(1) & (err < 2.0 * self.cfg.ransac_threshold_px)
-                    & (par > 0.5 * self.cfg.min_parallax_deg))
+            good = (
+                ok.reshape(-1)
+                & np.isfinite(X).all(1)
+                & (err < 2.0 * self.cfg.ransac_threshold_px)
+                & (par > 0.5 * self.cfg.min_parallax_deg)
+            )
             X[~good] = np.nan
             points[i] = X.reshape(h, w, 3)
-            conf[i] = np.where(good, np.clip(par / (4.0 * self.cfg.min_parallax_deg), 0.0, 1.0), 0.0).reshape(h, w)
+            conf[i] = np.where(good, np.clip(par / (4.0 * self.cfg.min_parallax_deg), 0.0, 1.0), 0.0).reshape(
+                h, w
+            )
         return points, conf
 
     # -- low parallax / rotation / no texture -------------------------------------------------
@@ -200,8 +233,10 @@ class MonoEncoder:
         n_valid = [int(v.sum()) for v in valid[1:]]
         if max(n_valid, default=0) < self.cfg.min_inliers:
             meta["reason"] = "no_texture"
-            log.warning("mono encoder: keyframes %s have no trackable texture; identity poses, empty point "
-                        "maps", [f.index for f in frames])
+            log.warning(
+                "mono encoder: keyframes %s have no trackable texture; identity poses, empty point maps",
+                [f.index for f in frames],
+            )
             return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
         if sd is not None and np.isfinite(sd).sum() >= self.cfg.min_inliers:
             meta["reason"] = "low_parallax_shared_depth"
@@ -210,7 +245,9 @@ class MonoEncoder:
             points[0], conf[0] = P0, np.where(np.isfinite(sd), PROPAGATED_CONFIDENCE, 0.0)
             for i in range(1, n):
                 uv0, uvi, z = sample_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
-                res = pnp(backproject(K, uv0, z), uvi, K, 2.0 * self.cfg.ransac_threshold_px, self.cfg.min_inliers)
+                res = pnp(
+                    backproject(K, uv0, z), uvi, K, 2.0 * self.cfg.ransac_threshold_px, self.cfg.min_inliers
+                )
                 if res.T_tgt_src is None:
                     meta["pnp_failed"].append(i)
                     T_local[i] = T_local[i - 1]
@@ -235,8 +272,11 @@ class MonoEncoder:
                     T_local[i] = T_local[i - 1]
                 else:
                     T_local[i, :3, :3] = R.T
-        log.warning("mono encoder: no reliable two-view geometry in keyframes %s (%s)",
-                    [f.index for f in frames], meta["reason"])
+        log.warning(
+            "mono encoder: no reliable two-view geometry in keyframes %s (%s)",
+            [f.index for f in frames],
+            meta["reason"],
+        )
         meta["depth_stats"] = [robust_depth_stats(p[..., 2]) for p in points]
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
 

@@ -42,8 +42,16 @@ def pnp(
     tvec0 = init[:3, 3].reshape(3, 1).copy() if use_guess else None
     try:
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            X, uv, K, None, rvec0, tvec0, useExtrinsicGuess=use_guess, iterationsCount=200,
-            reprojectionError=threshold_px, confidence=0.999,
+            X,
+            uv,
+            K,
+            None,
+            rvec0,
+            tvec0,
+            useExtrinsicGuess=use_guess,
+            iterationsCount=200,
+            reprojectionError=threshold_px,
+            confidence=0.999,
             flags=cv2.SOLVEPNP_ITERATIVE if use_guess else cv2.SOLVEPNP_EPNP,
         )
     except cv2.error as e:

@@ -48,7 +48,10 @@ def _rgbd_image(img: np.ndarray, depth: np.ndarray):  # [h, w, 3], [h, w] -> ope
     gray = np.ascontiguousarray(img @ np.array([0.299, 0.587, 0.114], dtype=np.float32), dtype=np.float32)
     d = np.ascontiguousarray(np.nan_to_num(depth, nan=0.0), dtype=np.float32)
     return o3d.geometry.RGBDImage.create_from_color_and_depth(
-        o3d.geometry.Image(gray), o3d.geometry.Image(d), depth_scale=1.0, depth_trunc=1e6,
+        o3d.geometry.Image(gray),
+        o3d.geometry.Image(d),
+        depth_scale=1.0,
+        depth_trunc=1e6,
         convert_rgb_to_intensity=False,
     )
 
@@ -64,16 +67,24 @@ def rgbd_odometry(
     try:
         import open3d as o3d
     except ImportError as e:  # pragma: no cover - open3d is a core dependency here
-        raise EncoderError("the rgbd encoder's odometry needs open3d: pip install open3d "
-                           "(or set encoder.rgbd_odometry=false)") from e
+        raise EncoderError(
+            "the rgbd encoder's odometry needs open3d: pip install open3d "
+            "(or set encoder.rgbd_odometry=false)"
+        ) from e
     pinhole = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
     option = o3d.pipelines.odometry.OdometryOption(
         iteration_number_per_pyramid_level=o3d.utility.IntVector([20, 10, 5]),
-        depth_diff_max=cfg.odometry_depth_diff_max, depth_min=cfg.min_depth, depth_max=cfg.max_depth,
+        depth_diff_max=cfg.odometry_depth_diff_max,
+        depth_min=cfg.min_depth,
+        depth_max=cfg.max_depth,
     )
     ok, T, _info = o3d.pipelines.odometry.compute_rgbd_odometry(
-        _rgbd_image(*src), _rgbd_image(*tgt), pinhole, init,
-        o3d.pipelines.odometry.RGBDOdometryJacobianFromHybridTerm(), option,
+        _rgbd_image(*src),
+        _rgbd_image(*tgt),
+        pinhole,
+        init,
+        o3d.pipelines.odometry.RGBDOdometryJacobianFromHybridTerm(),
+        option,
     )
     return bool(ok), np.asarray(T, dtype=np.float64)
 
@@ -96,14 +107,28 @@ class RGBDEncoder:
     def _frame_to_frame(self, imgs, depths, i, intr, meta) -> np.ndarray:  # -> T_i_{i-1} [4, 4]
         fw = self.flow(imgs[i - 1], imgs[i])
         bw = self.flow(imgs[i], imgs[i - 1])
-        valid = forward_backward_mask(fw, bw, FB_THRESHOLD_PX) & textured_mask(imgs[i - 1])  # flow is blind elsewhere
-        res = pnp_from_flow(depths[i - 1], fw, valid, intr.K, self.cfg.ransac_threshold_px,
-                            self.cfg.min_inliers, self.rng, self.cfg.max_points_per_frame)
+        valid = forward_backward_mask(fw, bw, FB_THRESHOLD_PX) & textured_mask(
+            imgs[i - 1]
+        )  # flow is blind elsewhere
+        res = pnp_from_flow(
+            depths[i - 1],
+            fw,
+            valid,
+            intr.K,
+            self.cfg.ransac_threshold_px,
+            self.cfg.min_inliers,
+            self.rng,
+            self.cfg.max_points_per_frame,
+        )
         meta["pnp_inliers"].append(res.inliers)
         T = res.T_tgt_src
         if T is None:
-            log.warning("rgbd encoder: PnP failed for frame %d -> %d (%d inliers); starting odometry "
-                        "from identity", i - 1, i, res.inliers)
+            log.warning(
+                "rgbd encoder: PnP failed for frame %d -> %d (%d inliers); starting odometry from identity",
+                i - 1,
+                i,
+                res.inliers,
+            )
             meta["pnp_failed"].append(i)
             T = np.eye(4)
         if self.cfg.rgbd_odometry:
@@ -129,8 +154,13 @@ class RGBDEncoder:
             sd = self._depth(np.asarray(shared_depth, dtype=np.float32), intr)
             holes = ~np.isfinite(depths[0]) & np.isfinite(sd)
             depths[0][holes] = sd[holes]
-        meta: dict = {"pnp_inliers": [], "pnp_failed": [], "odometry_rejected": [], "direct_rejected": [],
-                      "degenerate": False}
+        meta: dict = {
+            "pnp_inliers": [],
+            "pnp_failed": [],
+            "odometry_rejected": [],
+            "direct_rejected": [],
+            "degenerate": False,
+        }
         n = len(frames)
         T_local = np.tile(np.eye(4), (n, 1, 1))
         for i in range(1, n):
@@ -138,8 +168,9 @@ class RGBDEncoder:
             T_chain = T_local[i - 1] @ invert_T(T_i_prev)  # T_0_i
             T_local[i] = T_chain
             if self.cfg.rgbd_odometry and i > 1:
-                ok, T_i_0 = rgbd_odometry((imgs[0], depths[0]), (imgs[i], depths[i]), intr,
-                                          invert_T(T_chain), self.cfg)
+                ok, T_i_0 = rgbd_odometry(
+                    (imgs[0], depths[0]), (imgs[i], depths[i]), intr, invert_T(T_chain), self.cfg
+                )
                 T_direct = invert_T(T_i_0)
                 dt, dr = pose_distance(T_chain, T_direct)
                 if ok and dt < 0.05 + 0.2 * np.linalg.norm(T_chain[:3, 3]) and dr < 5.0:
@@ -148,11 +179,18 @@ class RGBDEncoder:
                     meta["direct_rejected"].append(i)
         if meta["pnp_failed"] and len(meta["pnp_failed"]) == n - 1:
             meta["degenerate"] = True
-            log.warning("rgbd encoder: no frame of submap %s could be registered by PnP (textureless "
-                        "or missing depth?); poses come from odometry alone", [f.index for f in frames])
+            log.warning(
+                "rgbd encoder: no frame of submap %s could be registered by PnP (textureless "
+                "or missing depth?); poses come from odometry alone",
+                [f.index for f in frames],
+            )
         points = np.stack([depth_to_points(intr.K, d) for d in depths]).astype(np.float32)
-        conf = np.stack([np.where(np.isfinite(d), np.where(depth_edge_mask(d), EDGE_CONFIDENCE, 1.0), 0.0)
-                         for d in depths]).astype(np.float32)
+        conf = np.stack(
+            [
+                np.where(np.isfinite(d), np.where(depth_edge_mask(d), EDGE_CONFIDENCE, 1.0), 0.0)
+                for d in depths
+            ]
+        ).astype(np.float32)
         meta["depth_stats"] = [robust_depth_stats(d) for d in depths]
         meta["scale_source"] = "metric"
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)

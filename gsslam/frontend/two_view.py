@@ -114,11 +114,15 @@ def two_view_pose(
     good = np.isfinite(X).all(1) & (err < 2.0 * threshold_px) & (par > 0.25 * min_parallax_deg)
     med_par = float(np.median(par[np.isfinite(X).all(1)])) if np.isfinite(X).any() else 0.0
     if good.sum() < min_inliers:
-        return TwoViewResult(None, *empty, med_par, n_e, n_h, f"too few well-triangulated points ({good.sum()})")
+        return TwoViewResult(
+            None, *empty, med_par, n_e, n_h, f"too few well-triangulated points ({good.sum()})"
+        )
     if med_par < min_parallax_deg:
         return TwoViewResult(None, *empty, med_par, n_e, n_h, f"low parallax ({med_par:.2f} deg)")
     if n_h >= 0.95 * n_e and med_par < 2.0 * min_parallax_deg:
-        return TwoViewResult(None, *empty, med_par, n_e, n_h, "homography explains the motion (rotation/plane)")
+        return TwoViewResult(
+            None, *empty, med_par, n_e, n_h, "homography explains the motion (rotation/plane)"
+        )
     return TwoViewResult(T, X[good], pa[inl][good], med_par, n_e, n_h, "ok")
 
 
@@ -158,12 +162,13 @@ def bundle_adjust(
     if len(fi) < 6 * (F - 1) + 10:
         return T_i_0, inv_depth
     b = rays(K, uv0)  # [N, 3]
-    x0 = np.concatenate([np.concatenate([cv2.Rodrigues(T[:3, :3])[0].ravel(), T[:3, 3]]) for T in T_i_0[1:]]
-                        + [inv_depth])
+    x0 = np.concatenate(
+        [np.concatenate([cv2.Rodrigues(T[:3, :3])[0].ravel(), T[:3, 3]]) for T in T_i_0[1:]] + [inv_depth]
+    )
 
     def unpack(x):
         P = x[: 6 * (F - 1)].reshape(F - 1, 6)
-        return P, x[6 * (F - 1):]
+        return P, x[6 * (F - 1) :]
 
     def residual(x):
         P, rho = unpack(x)
@@ -185,10 +190,18 @@ def bundle_adjust(
     S[rows, 6 * (F - 1) + pj] = 1
     S[rows + n_obs, 6 * (F - 1) + pj] = 1
     lb = np.full(len(x0), -np.inf)
-    lb[6 * (F - 1):] = 1e-6
-    sol = least_squares(residual, np.maximum(x0, lb + 1e-12), jac_sparsity=S, loss="huber",
-                        f_scale=threshold_px, max_nfev=max_nfev, x_scale="jac", method="trf",
-                        bounds=(lb, np.inf))
+    lb[6 * (F - 1) :] = 1e-6
+    sol = least_squares(
+        residual,
+        np.maximum(x0, lb + 1e-12),
+        jac_sparsity=S,
+        loss="huber",
+        f_scale=threshold_px,
+        max_nfev=max_nfev,
+        x_scale="jac",
+        method="trf",
+        bounds=(lb, np.inf),
+    )
     P, rho = unpack(sol.x)
     out = T_i_0.copy()
     for k, p in enumerate(P, start=1):

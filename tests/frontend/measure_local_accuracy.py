@@ -37,8 +37,11 @@ def select_keyframes(frames, flow, selector) -> list[int]:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("root", nargs="?", default=str(Path(__file__).resolve().parents[2] / "data" /
-                                                    "rgbd_dataset_freiburg3_teddy_60"))
+    ap.add_argument(
+        "root",
+        nargs="?",
+        default=str(Path(__file__).resolve().parents[2] / "data" / "rgbd_dataset_freiburg3_teddy_60"),
+    )
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--mode", default="rgbd")
     ap.add_argument("--set", action="append", default=[], help="encoder override, e.g. rgbd_odometry=false")
@@ -56,7 +59,7 @@ def main() -> None:
     all_t, all_r = [], []
     t0 = time.time()
     for s0 in range(0, len(kfs) - 1, K):
-        ids = kfs[s0: s0 + K + 1]
+        ids = kfs[s0 : s0 + K + 1]
         sub = [frames[i] for i in ids]
         if len(sub) < 2 or any(f.T_world_cam_gt is None for f in sub):
             continue
@@ -67,11 +70,16 @@ def main() -> None:
         all_t += list(te)
         all_r += list(re)
         flags = {k: e.meta.get(k) for k in ("degenerate", "direct_rejected", "pnp_failed")}
-        print(f"submap frames {[f.index for f in sub]} span {span*100:.1f} cm: mean t {te.mean()*100:.2f} cm "
-              f"(max {te.max()*100:.2f}), mean r {re.mean():.3f} deg (max {re.max():.3f}) scale {sc:.3f} "
-              f"flags {flags}")
-    print(f"{args.mode}: {len(kfs)} keyframes, overall mean t {np.mean(all_t)*100:.2f} cm, "
-          f"mean r {np.mean(all_r):.3f} deg, encode time {time.time() - t0:.1f} s")
+        print(
+            f"submap frames {[f.index for f in sub]} span {span * 100:.1f} cm: "
+            f"mean t {te.mean() * 100:.2f} cm "
+            f"(max {te.max() * 100:.2f}), mean r {re.mean():.3f} deg (max {re.max():.3f}) scale {sc:.3f} "
+            f"flags {flags}"
+        )
+    print(
+        f"{args.mode}: {len(kfs)} keyframes, overall mean t {np.mean(all_t) * 100:.2f} cm, "
+        f"mean r {np.mean(all_r):.3f} deg, encode time {time.time() - t0:.1f} s"
+    )
 
 
 if __name__ == "__main__":

@@ -31,10 +31,34 @@ class PlaneScene:
         rng = np.random.default_rng(seed)
         # (point on plane, axis u, axis v, extent u, extent v)
         self.planes = [
-            (np.array([-2.0, -1.5, 4.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 4.0, 3.0),  # back wall
-            (np.array([-2.0, 1.0, 0.5]), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), 4.0, 3.5),  # floor (y down)
-            (np.array([-1.6, -1.5, 0.5]), np.array([0, 0, 1.0]), np.array([0, 1.0, 0]), 3.5, 2.5),  # left wall
-            (np.array([0.1, -0.2, 2.5]), np.array([1.0, 0, 0.3]) / np.hypot(1, 0.3), np.array([0, 1.0, 0]), 0.7, 0.7),
+            (
+                np.array([-2.0, -1.5, 4.0]),
+                np.array([1.0, 0, 0]),
+                np.array([0, 1.0, 0]),
+                4.0,
+                3.0,
+            ),  # back wall
+            (
+                np.array([-2.0, 1.0, 0.5]),
+                np.array([1.0, 0, 0]),
+                np.array([0, 0, 1.0]),
+                4.0,
+                3.5,
+            ),  # floor (y down)
+            (
+                np.array([-1.6, -1.5, 0.5]),
+                np.array([0, 0, 1.0]),
+                np.array([0, 1.0, 0]),
+                3.5,
+                2.5,
+            ),  # left wall
+            (
+                np.array([0.1, -0.2, 2.5]),
+                np.array([1.0, 0, 0.3]) / np.hypot(1, 0.3),
+                np.array([0, 1.0, 0]),
+                0.7,
+                0.7,
+            ),
         ]
         self.textures = [_texture(rng) for _ in self.planes]
 
@@ -61,10 +85,16 @@ class PlaneScene:
             tv = np.clip(b[hit] * (S - 1), 0, S - 1.001)
             iu, iv = tu.astype(int), tv.astype(int)
             fu, fv = (tu - iu)[:, None], (tv - iv)[:, None]
-            img[hit] = ((1 - fu) * (1 - fv) * tex[iv, iu] + fu * (1 - fv) * tex[iv, iu + 1]
-                        + (1 - fu) * fv * tex[iv + 1, iu] + fu * fv * tex[iv + 1, iu + 1])
+            img[hit] = (
+                (1 - fu) * (1 - fv) * tex[iv, iu]
+                + fu * (1 - fv) * tex[iv, iu + 1]
+                + (1 - fu) * fv * tex[iv + 1, iu]
+                + fu * fv * tex[iv + 1, iu + 1]
+            )
             best_t[hit] = t[hit]
-        depth = np.where(np.isfinite(best_t), best_t, np.nan).astype(np.float32)  # z_cam = t since d_cam.z = 1
+        depth = np.where(np.isfinite(best_t), best_t, np.nan).astype(
+            np.float32
+        )  # z_cam = t since d_cam.z = 1
         return img.reshape(H, W, 3), depth.reshape(H, W)
 
     def frames(self, poses: list[np.ndarray], with_depth: bool = False) -> list[Frame]:
@@ -77,8 +107,13 @@ class PlaneScene:
 
 def forward_motion(n: int, step: float = 0.06, yaw_deg: float = 1.0) -> list[np.ndarray]:
     """Camera moving sideways and forward with a slow yaw: good parallax."""
-    return [make_T(so3_exp(np.array([0.0, np.radians(yaw_deg) * i, 0.0])),
-                   np.array([step * i, 0.02 * i, 0.5 * step * i])) for i in range(n)]
+    return [
+        make_T(
+            so3_exp(np.array([0.0, np.radians(yaw_deg) * i, 0.0])),
+            np.array([step * i, 0.02 * i, 0.5 * step * i]),
+        )
+        for i in range(n)
+    ]
 
 
 def pure_rotation(n: int, deg: float = 1.5) -> list[np.ndarray]:

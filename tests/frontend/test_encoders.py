@@ -53,7 +53,9 @@ def test_rgbd_local_poses_match_ground_truth(bundled_tum, ids):
     z_sensor = frames[0].depth[::2, ::2]
     ok = np.isfinite(z_sensor) & np.isfinite(enc.depths[0])
     assert ok.mean() > 0.5 and np.allclose(enc.depths[0][ok], z_sensor[ok], atol=0.02)
-    assert (enc.confidence[np.isfinite(enc.depths)] > 0).all() and (enc.confidence[~np.isfinite(enc.depths)] == 0).all()
+    assert (enc.confidence[np.isfinite(enc.depths)] > 0).all() and (
+        enc.confidence[~np.isfinite(enc.depths)] == 0
+    ).all()
 
 
 def test_rgbd_needs_depth(scene):
@@ -112,16 +114,20 @@ def test_black_and_repeated_frames_do_not_crash(scene, mode):
     if mode == "mono":
         for f in frames:
             f.depth = None
-    black = [type(f)(f.index, f.timestamp, np.zeros_like(f.image), f.intrinsics, f.depth, f.T_world_cam_gt)
-             for f in frames]
+    black = [
+        type(f)(f.index, f.timestamp, np.zeros_like(f.image), f.intrinsics, f.depth, f.T_world_cam_gt)
+        for f in frames
+    ]
     enc = _encoder(mode).encode(black)
     assert np.isfinite(enc.T_local_cam).all()
     if mode == "mono":
         assert enc.meta["degenerate"] and enc.meta["reason"] == "no_texture"
     else:
         assert enc.meta["degenerate"] and len(enc.meta["pnp_failed"]) == 3
-    repeated = [type(f)(i, float(i), frames[0].image, f.intrinsics, frames[0].depth, None)
-                for i, f in enumerate(frames)]
+    repeated = [
+        type(f)(i, float(i), frames[0].image, f.intrinsics, frames[0].depth, None)
+        for i, f in enumerate(frames)
+    ]
     enc = _encoder(mode).encode(repeated)
     assert np.isfinite(enc.T_local_cam).all()
     assert np.abs(enc.T_local_cam - np.eye(4)).max() < 1e-2  # no motion invented

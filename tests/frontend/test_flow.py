@@ -25,8 +25,9 @@ from gsslam.frontend.flow import (  # noqa: E402
 
 def _shift(img: np.ndarray, dx: float, dy: float) -> np.ndarray:
     M = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
-    return cv2.warpAffine(img, M, (img.shape[1], img.shape[0]), flags=cv2.INTER_CUBIC,
-                          borderMode=cv2.BORDER_REFLECT)
+    return cv2.warpAffine(
+        img, M, (img.shape[1], img.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +35,9 @@ def teddy(bundled_tum):
     return load_tum(bundled_tum, [10, 14])
 
 
-@pytest.mark.parametrize("method,preset,bound", [("dis", "medium", 0.3), ("dis", "fast", 0.3),
-                                                 ("farneback", "medium", 0.3)])
+@pytest.mark.parametrize(
+    "method,preset,bound", [("dis", "medium", 0.3), ("dis", "fast", 0.3), ("farneback", "medium", 0.3)]
+)
 def test_flow_recovers_subpixel_shift(teddy, method, preset, bound):
     img0 = teddy[0].image
     dx, dy = 3.4, -2.3
@@ -59,12 +61,12 @@ def test_forward_backward_mask_rejects_occlusion(teddy):
     img1 = _shift(img0, 5.0, 3.0)
     # an occluder in img1: a patch of another part of the image pasted over the middle
     y0, x0, s = 180, 260, 100
-    img1[y0:y0 + s, x0:x0 + s] = np.ascontiguousarray(img0[20:20 + s, 500:500 + s][::-1, ::-1])
+    img1[y0 : y0 + s, x0 : x0 + s] = np.ascontiguousarray(img0[20 : 20 + s, 500 : 500 + s][::-1, ::-1])
     fe = make_flow_estimator(FlowConfig())
     fw, bw = fe(img0, img1), fe(img1, img0)
     mask = forward_backward_mask(fw, bw, 2.0)
     occluded = np.zeros(mask.shape, bool)
-    occluded[y0 + 7:y0 + s - 13, x0 + 5:x0 + s - 15] = True  # img0 pixels hidden by the patch in img1
+    occluded[y0 + 7 : y0 + s - 13, x0 + 5 : x0 + s - 15] = True  # img0 pixels hidden by the patch in img1
     clear = np.zeros(mask.shape, bool)
     clear[40:150, 40:200] = True
     assert mask[occluded].mean() < 0.3, mask[occluded].mean()
@@ -77,7 +79,7 @@ def test_forward_backward_mask_flags_targets_outside():
     fw[..., 0] = 10.0
     bw = -fw
     m = forward_backward_mask(fw, bw, 0.5)
-    assert m[:, : W - 10].all() and not m[:, W - 9:].any()
+    assert m[:, : W - 10].all() and not m[:, W - 9 :].any()
 
 
 def test_compose_and_resize():
@@ -99,6 +101,7 @@ def test_unknown_method_and_adapter_slot():
         def est(img0, img1):
             calls.append(cfg.max_side)
             return np.zeros(img0.shape[:2] + (2,), np.float32)
+
         return est
 
     register_flow_method("zeros_test", factory)

@@ -70,9 +70,12 @@ def test_correspondences_weights_and_errors():
     flow = np.zeros((60, 80, 2), np.float32)
     fb = np.zeros((60, 80), np.float32)
     fb[:, 40:] = 4.0
-    c = correspondences_from_flow(src, tgt, flow, np.ones((60, 80), bool), None, 10000, np.random.default_rng(1),
-                                  fb_error=fb)
+    c = correspondences_from_flow(
+        src, tgt, flow, np.ones((60, 80), bool), None, 10000, np.random.default_rng(1), fb_error=fb
+    )
     assert len(c) == 60 * 80 and np.isnan(c.depth_src).all()
     assert np.allclose(c.weight[c.uv_src[:, 0] < 40], 1.0) and (c.weight[c.uv_src[:, 0] >= 40] < 0.05).all()
     with pytest.raises(CorrespondenceError):
-        correspondences_from_flow(src, tgt, flow[:10], np.ones((60, 80), bool), None, 10, np.random.default_rng())
+        correspondences_from_flow(
+            src, tgt, flow[:10], np.ones((60, 80), bool), None, 10, np.random.default_rng()
+        )

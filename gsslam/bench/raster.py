@@ -81,14 +81,21 @@ def make_scene(
     }
 
 
-def _time(fn, repeats: int) -> float:
+def _time(fn, repeats: int) -> tuple[float, float, float]:
+    """(median wall, min wall, median process CPU) milliseconds over ``repeats`` calls after a warm-up.
+
+    The CPU time (summed over threads) is the work done; on a shared, oversubscribed machine it is a
+    far steadier number than wall time.
+    """
     fn()  # warm-up (and kernel build on first use)
-    times = []
+    wall, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
-    return 1000.0 * statistics.median(times)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    ms = lambda v: round(1000.0 * v, 2)  # noqa: E731
+    return ms(statistics.median(wall)), ms(min(wall)), ms(statistics.median(cpu))
 
 
 def _backends() -> list[tuple[str, str]]:
@@ -115,7 +122,12 @@ def run(
     repeats: int = 10,
     footprint_px: tuple[float, float] = (1.0, 3.0),
 ) -> dict:
-    """Median fw and fw+bw milliseconds per backend on a realistic scene; returns a JSON-able dict."""
+    """Median (and min) fw and fw+bw milliseconds per backend on a realistic scene; a JSON-able dict.
+
+    fw+bw is one render plus the backward of a loss touching colour, depth, normal and alpha, with
+    gradients for every Gaussian parameter and the pose. The pure-torch reference is timed with at
+    most 3 repeats (it takes seconds).
+    """
     scene = make_scene(gaussians, width, height, footprint_px)
     result: dict = {
         "gaussians": gaussians,
@@ -151,9 +163,15 @@ def run(
         reps = repeats if backend != "torch" or device == "cuda" else max(1, min(repeats, 3))
         with torch.no_grad():
             out = forward()
+        fw_med, fw_min, fw_cpu = _time(fw, reps)
+        fwbw_med, fwbw_min, fwbw_cpu = _time(fwbw, reps)
         entry = {
-            "fw_ms": round(_time(fw, reps), 2),
-            "fwbw_ms": round(_time(fwbw, reps), 2),
+            "fw_ms": fw_med,
+            "fwbw_ms": fwbw_med,
+            "fw_min_ms": fw_min,
+            "fwbw_min_ms": fwbw_min,
+            "fw_cpu_ms": fw_cpu,
+            "fwbw_cpu_ms": fwbw_cpu,
             "visible": int((out.radii > 0).sum()),
             "mean_radius_px": round(float(out.radii[out.radii > 0].float().mean()), 2),
             "coverage": round(float((out.alpha > 0.5).float().mean()), 3),

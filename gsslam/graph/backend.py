@@ -198,5 +198,5 @@ class Backend:
 
     @property
     def isam_size(self) -> int:
-        """Number of variables in iSAM2."""
-        return int(self._isam.size())
+        """Number of variables in iSAM2 (``ISAM2.size()`` counts Bayes-tree cliques, not variables)."""
+        return int(self._isam.getLinearizationPoint().size())

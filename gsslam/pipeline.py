@@ -62,6 +62,7 @@ class Chain:
     graph: object
     T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world
     encodings: list[SubmapEncoding] = field(default_factory=list)
+    failed: bool = False  # an update threw: no further optimisation of this graph
 
 
 class Pipeline:
@@ -200,16 +201,33 @@ class Pipeline:
             log.warning("submap encoding failed: %s", e)
             self.window = [frames[-1]]
             return
-        sid = chain.graph.add_submap(enc)
-        chain.encodings.append(enc)
         cid = len(self.chains) - 1
-        for pos, idx in enumerate(enc.frame_indices):
-            if pos == 0 and idx in self.keyframes:
-                continue  # the shared frame keeps the depth of the submap it was made in
-            self.keyframes[idx] = _Keyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
-        self._add_cross_flow(chain, frames)
-        chain.graph.update()
-        self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
+        added = []
+        try:
+            sid = chain.graph.add_submap(enc)
+            chain.encodings.append(enc)
+            for pos, idx in enumerate(enc.frame_indices):
+                if pos == 0 and idx in self.keyframes:
+                    continue  # the shared frame keeps the depth of the submap it was made in
+                self.keyframes[idx] = _Keyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
+                added.append(idx)
+            self._add_cross_flow(chain, frames)
+            chain.graph.update()
+            self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
+        except GsslamError as e:
+            # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
+            # was and continue with a new chain that starts at this submap's last keyframe.
+            self.events.append(Event(frames[-1].index, "graph", str(e).splitlines()[0]))
+            log.warning("graph update failed, starting a new chain: %s", str(e).splitlines()[0])
+            for idx in added:
+                self.keyframes.pop(idx, None)
+            if chain.encodings and chain.encodings[-1] is enc:
+                chain.encodings.pop()
+            chain.failed = True
+            self.window = []
+            self._start_chain(frames[-1])
+            self.events.append(Event(frames[-1].index, "new_chain", "after a graph failure"))
+            return
         self.prev_frames = frames
         self.window = [frames[-1]]
 
@@ -250,8 +268,11 @@ class Pipeline:
         self._close_chain()
         if self.cfg.graph.final_batch_refinement:
             for chain in self.chains:
-                if chain.encodings:
-                    chain.graph.refine_batch()
+                if chain.encodings and not chain.failed:
+                    try:
+                        chain.graph.refine_batch()
+                    except GsslamError as e:
+                        self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
 
     # ---- poses -------------------------------------------------------------------------------
 
@@ -260,7 +281,10 @@ class Pipeline:
         out = {}
         for idx, kf in self.keyframes.items():
             chain = self.chains[kf.chain]
-            out[idx] = chain.T_world_chain @ chain.graph.keyframe_pose(idx)
+            try:
+                out[idx] = chain.T_world_chain @ chain.graph.keyframe_pose(idx)
+            except GsslamError as e:
+                log.warning("keyframe %d has no pose: %s", idx, e)
         for chain in self.chains:  # a chain that never got a submap: its origin keyframe only
             if not chain.encodings and self.window and chain is self.chains[-1]:
                 out.setdefault(self.window[0].index, chain.T_world_chain.copy())

@@ -2,10 +2,10 @@
 
 The scene is realistic: Gaussians seeded from the depth map of the first frame of the bundled TUM
 fr3/teddy sequence (at the benchmark resolution), coloured from its image, with random rotations,
-per-axis scales whose 3-sigma extent projects to ``footprint_px`` pixels (uniform in [1, 3] by default) and opacities
-in [0.3, 0.9]. It falls back to a synthetic slanted wall when the bundled data is absent. Times are
-medians over ``repeats`` after one warm-up, per available backend; the torch thread count is the
-caller's (the CLI leaves it at torch's default).
+per-axis scales whose 3-sigma extent projects to ``footprint_px`` pixels (uniform in [1, 3] by
+default) and opacities in [0.3, 0.9]. It falls back to a synthetic slanted wall when the bundled data
+is absent. Times are medians (and minima, and process CPU time) over ``repeats`` after one warm-up,
+per available backend; the torch thread count is the caller's (the CLI leaves torch's default).
 """
 
 from __future__ import annotations
@@ -38,8 +38,13 @@ def _frame(width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
         sx, sy = width / intr.width, height / intr.height
         image = cv2.resize(fr.image, (width, height), interpolation=cv2.INTER_AREA)
         depth = cv2.resize(fr.depth, (width, height), interpolation=cv2.INTER_NEAREST)
-        K = np.array([[intr.fx * sx, 0, (intr.cx + 0.5) * sx - 0.5], [0, intr.fy * sy, (intr.cy + 0.5) * sy - 0.5],
-                      [0, 0, 1]])
+        K = np.array(
+            [
+                [intr.fx * sx, 0, (intr.cx + 0.5) * sx - 0.5],
+                [0, intr.fy * sy, (intr.cy + 0.5) * sy - 0.5],
+                [0, 0, 1],
+            ]
+        )
         return image, depth, K, "tum fr3/teddy frame 0"
     f = 0.9 * width
     K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
@@ -140,8 +145,10 @@ def run(
     }
     for backend, device in _backends():
         params = {k: t.to(device) for k, t in scene.items()}
-        grads = [params[k].requires_grad_(True) for k in ("means", "quats", "scales", "opacities", "colors",
-                                                          "T_cam_world")]
+        grads = [
+            params[k].requires_grad_(True)
+            for k in ("means", "quats", "scales", "opacities", "colors", "T_cam_world")
+        ]
         sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
 
         def forward(params=params, backend=backend):

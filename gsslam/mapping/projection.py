@@ -44,9 +44,15 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:  # [N, 4] (w, x, y, z) -> [N, 3, 3]
     w, x, y, z = q.unbind(-1)
     R = torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     )
@@ -68,7 +74,9 @@ def check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width,
         if not isinstance(t, Tensor):
             raise RasterizeError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
         if tuple(t.shape) != shape:
-            raise RasterizeError(f"{name} must have shape {list(shape)} (N = len(means)), got {list(t.shape)}")
+            raise RasterizeError(
+                f"{name} must have shape {list(shape)} (N = len(means)), got {list(t.shape)}"
+            )
         if not t.is_floating_point():
             raise RasterizeError(f"{name} must be a floating-point tensor, got {t.dtype}")
         if t.device != means.device:

@@ -63,10 +63,20 @@ def render(
     width, height = int(width), int(height)
     proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near)
     if backend == "gsplat" or (backend == "auto" and means.is_cuda and _gsplat_available()):
-        return _render_gsplat(proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height,
-                              background, near)
+        return _render_gsplat(
+            proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near
+        )
     features = torch.cat([colors.to(means.dtype), proj.depths[:, None], proj.normals], dim=-1)  # [N, 7]
-    args = (proj.means2d, proj.conics, opacities.to(means.dtype), features, proj.depths, proj.radii, width, height)
+    args = (
+        proj.means2d,
+        proj.conics,
+        opacities.to(means.dtype),
+        features,
+        proj.depths,
+        proj.radii,
+        width,
+        height,
+    )
     if backend == "torch" or (backend in ("auto", "fast") and not _fast_available(means)):
         feat, alpha = composite_reference(*args)
     else:
@@ -89,8 +99,9 @@ def render(
     )
 
 
-def _render_gsplat(proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background,
-                   near) -> RenderOutput:
+def _render_gsplat(
+    proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near
+) -> RenderOutput:
     """CUDA path: gsplat.rasterization for the images; the per-Gaussian outputs come from our projection.
 
     gsplat puts pixel centres at +0.5, so the principal point is shifted by half a pixel. Normals ride
@@ -110,16 +121,36 @@ def _render_gsplat(proj, means, quats, scales, opacities, colors, T_cam_world, K
     Kg[1, 2] = Kg[1, 2] + 0.5
     feats = torch.cat([colors.to(dtype), proj.normals], dim=-1)  # [N, 6]
     img, alpha, _ = gsplat.rasterization(
-        means, quats, scales, opacities, feats, T_cam_world.to(dtype)[None], Kg[None], width, height,
-        near_plane=near, eps2d=0.3, packed=False, render_mode="RGB+ED", rasterize_mode="classic",
+        means,
+        quats,
+        scales,
+        opacities,
+        feats,
+        T_cam_world.to(dtype)[None],
+        Kg[None],
+        width,
+        height,
+        near_plane=near,
+        eps2d=0.3,
+        packed=False,
+        render_mode="RGB+ED",
+        rasterize_mode="classic",
     )
     img, alpha = img[0], alpha[0, ..., 0]  # [H, W, 7], [H, W]
     color = img[..., :3]
     if background is not None:
         color = color + (1.0 - alpha)[..., None] * background.to(color.dtype)
     depth = torch.where(alpha > ALPHA_EPS, img[..., 6], torch.zeros_like(alpha))
-    return RenderOutput(color=color, depth=depth, alpha=alpha, normal=img[..., 3:6], means2d=proj.means2d,
-                        cov2d=proj.cov2d, depths=proj.depths, radii=proj.radii)
+    return RenderOutput(
+        color=color,
+        depth=depth,
+        alpha=alpha,
+        normal=img[..., 3:6],
+        means2d=proj.means2d,
+        cov2d=proj.cov2d,
+        depths=proj.depths,
+        radii=proj.radii,
+    )
 
 
 def _gsplat_available() -> bool:

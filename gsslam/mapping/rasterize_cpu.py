@@ -56,11 +56,20 @@ def _build(cc: str, target: Path) -> None:
         for tag, real, exp in _VARIANTS.values():
             obj = Path(tmp) / f"{tag}.o"
             defs = [f"-DREAL={real}", f"-DTAG={tag}", f"-DEXP={exp}"]
-            subprocess.run([cc, *_FLAGS, *defs, "-c", str(_SOURCE), "-o", str(obj)], check=True,
-                           capture_output=True, text=True)
+            subprocess.run(
+                [cc, *_FLAGS, *defs, "-c", str(_SOURCE), "-o", str(obj)],
+                check=True,
+                capture_output=True,
+                text=True,
+            )
             objs.append(str(obj))
         out = Path(tmp) / target.name
-        subprocess.run([cc, "-shared", "-pthread", *objs, "-o", str(out), "-lm"], check=True, capture_output=True, text=True)
+        subprocess.run(
+            [cc, "-shared", "-pthread", *objs, "-o", str(out), "-lm"],
+            check=True,
+            capture_output=True,
+            text=True,
+        )
         os.replace(out, target)  # atomic: concurrent builders never see a half-written library
 
 
@@ -89,8 +98,11 @@ def _load() -> ctypes.CDLL | None:
         _lib = lib
     except (OSError, RuntimeError, subprocess.CalledProcessError) as e:
         detail = getattr(e, "stderr", "") or ""
-        _log.warning("compiled CPU rasterizer unavailable (%s %s); using the slower pure-torch reference",
-                     e, detail.strip()[:500])
+        _log.warning(
+            "compiled CPU rasterizer unavailable (%s %s); using the slower pure-torch reference",
+            e,
+            detail.strip()[:500],
+        )
         _load_failed = True
     return _lib
 
@@ -132,20 +144,45 @@ class _CompositeCPU(torch.autograd.Function):
         threads = torch.get_num_threads()
         order = torch.sort(depths.detach(), stable=True).indices.contiguous()
         counts = torch.empty(P, dtype=torch.int32)
-        total = getattr(lib, f"count_pairs_{tag}")(n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad),
-                                                   _ptr(counts), threads)
+        total = getattr(lib, f"count_pairs_{tag}")(
+            n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(counts), threads
+        )
         offsets = torch.zeros(P + 1, dtype=torch.int64)
         torch.cumsum(counts, 0, out=offsets[1:])
         cursor = torch.empty(P, dtype=torch.int64)
         pair_gid = torch.empty(total, dtype=torch.int32)
         pair_alpha = torch.empty(total, dtype=dt)
-        getattr(lib, f"fill_pairs_{tag}")(n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(order),
-                                          _ptr(offsets), _ptr(cursor), _ptr(pair_gid), _ptr(pair_alpha), threads)
+        getattr(lib, f"fill_pairs_{tag}")(
+            n,
+            width,
+            height,
+            _ptr(mu),
+            _ptr(con),
+            _ptr(op),
+            _ptr(rad),
+            _ptr(order),
+            _ptr(offsets),
+            _ptr(cursor),
+            _ptr(pair_gid),
+            _ptr(pair_alpha),
+            threads,
+        )
         out_feat = torch.empty(P, f, dtype=dt)
         out_T = torch.empty(P, dtype=dt)
         n_used = torch.empty(P, dtype=torch.int32)
-        getattr(lib, f"composite_forward_{tag}")(width, height, f, _ptr(offsets), _ptr(pair_gid), _ptr(pair_alpha),
-                                                 _ptr(feat), _ptr(out_feat), _ptr(out_T), _ptr(n_used), threads)
+        getattr(lib, f"composite_forward_{tag}")(
+            width,
+            height,
+            f,
+            _ptr(offsets),
+            _ptr(pair_gid),
+            _ptr(pair_alpha),
+            _ptr(feat),
+            _ptr(out_feat),
+            _ptr(out_T),
+            _ptr(n_used),
+            threads,
+        )
         ctx.save_for_backward(mu, con, op, feat, offsets, pair_gid, pair_alpha, out_T, n_used)
         ctx.size = (width, height)
         ctx.in_dtypes = (conics.dtype, opacities.dtype, features.dtype)
@@ -166,9 +203,26 @@ class _CompositeCPU(torch.autograd.Function):
         g_mu, g_con = torch.zeros(n, 2, dtype=dt), torch.zeros(n, 3, dtype=dt)
         g_op, g_feat = torch.zeros(n, dtype=dt), torch.zeros(n, f, dtype=dt)
         status = getattr(_lib, f"composite_backward_{tag}")(
-            width, height, f, n, _ptr(offsets), _ptr(pair_gid), _ptr(pair_alpha), _ptr(mu), _ptr(con), _ptr(op),
-            _ptr(feat), _ptr(out_T), _ptr(n_used), _ptr(g_feat_out), _ptr(g_alpha_out), _ptr(g_mu), _ptr(g_con),
-            _ptr(g_op), _ptr(g_feat), torch.get_num_threads(),
+            width,
+            height,
+            f,
+            n,
+            _ptr(offsets),
+            _ptr(pair_gid),
+            _ptr(pair_alpha),
+            _ptr(mu),
+            _ptr(con),
+            _ptr(op),
+            _ptr(feat),
+            _ptr(out_T),
+            _ptr(n_used),
+            _ptr(g_feat_out),
+            _ptr(g_alpha_out),
+            _ptr(g_mu),
+            _ptr(g_con),
+            _ptr(g_op),
+            _ptr(g_feat),
+            torch.get_num_threads(),
         )
         if status != 0:
             raise MemoryError("the CPU rasterizer backward could not allocate its per-thread buffers")

@@ -96,6 +96,8 @@ def composite_reference(
         alive = T_after >= T_MIN  # a prefix of each row: the early stop
     weights = torch.where(alive, table * T_before, torch.zeros_like(table))  # [P, Kmax]
     w_pairs = weights[pix, slot]  # [M]
-    out = torch.zeros(P, f, dtype=features.dtype, device=dev).index_add(0, pix, w_pairs[:, None] * features[gid])
+    out = torch.zeros(P, f, dtype=features.dtype, device=dev).index_add(
+        0, pix, w_pairs[:, None] * features[gid]
+    )
     acc = weights.sum(dim=1)
     return out.reshape(height, width, f), acc.reshape(height, width)

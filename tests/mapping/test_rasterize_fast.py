@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_rasterize_reference import intrinsics, random_scene, small_pose
 
 from gsslam.mapping import rasterize_cpu
 from gsslam.mapping.rasterize import render
-
-from test_rasterize_reference import intrinsics, random_scene, small_pose
 
 pytestmark = pytest.mark.skipif(not rasterize_cpu.available(torch.zeros(1)), reason="no C compiler")
 
@@ -31,7 +30,9 @@ def test_fast_matches_reference_values_and_gradients(dtype, rtol, seed):
     weights = torch.rand(h, w, 8, generator=torch.Generator().manual_seed(seed), dtype=dtype)
     img_ref, out_ref, g_ref = _render_and_grads("torch", scene, T, K, w, h, bg, weights)
     img_fast, out_fast, g_fast = _render_and_grads("fast", scene, T, K, w, h, bg, weights)
-    assert float(out_ref.alpha.detach().max()) > 0.9 and float(out_ref.alpha.detach().min()) < 0.1  # a non-trivial image
+    assert (
+        float(out_ref.alpha.detach().max()) > 0.9 and float(out_ref.alpha.detach().min()) < 0.1
+    )  # a non-trivial image
     assert torch.equal(out_ref.radii, out_fast.radii)
     torch.testing.assert_close(img_fast, img_ref, rtol=rtol, atol=rtol)
     names = ["means", "quats", "scales", "opacities", "colors", "T_cam_world"]
@@ -63,8 +64,9 @@ def test_fast_handles_empty_and_saturated_images():
     # every Gaussian behind the camera: nothing drawn, zero gradients, no crash
     scene = list(random_scene(10, 0, dtype=dt))
     scene[0] = scene[0] * torch.tensor([1.0, 1.0, -1.0])
-    _, out, grads = _render_and_grads("fast", scene, torch.eye(4, dtype=dt), K, w, h, None,
-                                      torch.ones(h, w, 8, dtype=dt))
+    _, out, grads = _render_and_grads(
+        "fast", scene, torch.eye(4, dtype=dt), K, w, h, None, torch.ones(h, w, 8, dtype=dt)
+    )
     assert float(out.alpha.detach().max()) == 0.0 and all(float(g.abs().max()) == 0.0 for g in grads)
     # many opaque layers: transmittance early stop engaged, still equal to the reference
     scene = list(random_scene(60, 1, dtype=dt))
@@ -75,3 +77,25 @@ def test_fast_handles_empty_and_saturated_images():
     assert float(a.alpha.min()) > 0.99
     torch.testing.assert_close(a.color, b.color, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(a.depth, b.depth, rtol=1e-4, atol=1e-4)
+
+
+def test_without_a_compiler_fast_falls_back_to_the_reference(monkeypatch, tmp_path):
+    monkeypatch.setattr(rasterize_cpu, "_lib", None)
+    monkeypatch.setattr(rasterize_cpu, "_load_failed", False)
+    monkeypatch.setattr(rasterize_cpu, "_compiler", lambda: None)
+    monkeypatch.setenv("GSSLAM_CACHE_DIR", str(tmp_path))  # empty cache: a build would be needed
+    w, h = 16, 12
+    scene = random_scene(10, 4)
+    T, K = small_pose(4), intrinsics(w, h)
+    out = render(*scene, T, K, w, h, backend="fast")
+    assert not rasterize_cpu.available(scene[0])
+    ref = render(*scene, T, K, w, h, backend="torch")
+    torch.testing.assert_close(out.color, ref.color, rtol=0, atol=0)
+
+
+def test_kernel_builds_into_a_fresh_cache(monkeypatch, tmp_path):
+    monkeypatch.setattr(rasterize_cpu, "_lib", None)
+    monkeypatch.setattr(rasterize_cpu, "_load_failed", False)
+    monkeypatch.setenv("GSSLAM_CACHE_DIR", str(tmp_path))
+    assert rasterize_cpu.available(torch.zeros(1))
+    assert len(list(tmp_path.glob("rasterize_cpu_*.so"))) == 1

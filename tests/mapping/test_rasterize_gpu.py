@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_rasterize_reference import intrinsics, random_scene, small_pose
 
 from gsslam.mapping.projection import RasterizeError
 from gsslam.mapping.rasterize import render
-
-from test_rasterize_reference import intrinsics, random_scene, small_pose
 
 
 def test_gsplat_backend_on_cpu_tensors_raises_a_clear_error():

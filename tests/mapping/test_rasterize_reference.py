@@ -116,8 +116,18 @@ def test_plane_facing_camera_gives_its_depth_and_normal():
     means = torch.tensor([[0.1, -0.05, 2.5]], dtype=dt)
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=dt)
     scales = torch.tensor([[2.0, 2.0, 1e-3]], dtype=dt)  # a thin disc in the z = 2.5 plane
-    out = render(means, quats, scales, torch.tensor([0.95], dtype=dt), torch.ones(1, 3, dtype=dt),
-                 torch.eye(4, dtype=dt), intrinsics(w, h), w, h, backend="torch")
+    out = render(
+        means,
+        quats,
+        scales,
+        torch.tensor([0.95], dtype=dt),
+        torch.ones(1, 3, dtype=dt),
+        torch.eye(4, dtype=dt),
+        intrinsics(w, h),
+        w,
+        h,
+        backend="torch",
+    )
     covered = out.alpha > 0.5
     assert covered.all()
     np.testing.assert_allclose(out.depth[covered].numpy(), 2.5, atol=1e-9)
@@ -133,23 +143,52 @@ def test_gaussians_behind_or_too_near_the_camera_are_culled():
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 3, dtype=dt)
     scales = torch.full((3, 3), 0.3, dtype=dt)
     colors = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], dtype=dt)
-    out = render(means, quats, scales, torch.full((3,), 0.9, dtype=dt), colors, torch.eye(4, dtype=dt),
-                 intrinsics(w, h), w, h, near=0.01, backend="torch")
+    out = render(
+        means,
+        quats,
+        scales,
+        torch.full((3,), 0.9, dtype=dt),
+        colors,
+        torch.eye(4, dtype=dt),
+        intrinsics(w, h),
+        w,
+        h,
+        near=0.01,
+        backend="torch",
+    )
     assert out.radii.tolist()[:2] == [0, 0] and int(out.radii[2]) > 0
     assert float(out.color[..., :2].abs().max()) == 0.0  # neither red nor green appears
     assert float(out.color[..., 2].max()) > 0.5
     # moving the camera behind the last Gaussian leaves an empty image
     T = torch.eye(4, dtype=dt)
     T[2, 3] = -5.0
-    out = render(means, quats, scales, torch.full((3,), 0.9, dtype=dt), colors, T, intrinsics(w, h), w, h,
-                 backend="torch")
+    out = render(
+        means,
+        quats,
+        scales,
+        torch.full((3,), 0.9, dtype=dt),
+        colors,
+        T,
+        intrinsics(w, h),
+        w,
+        h,
+        backend="torch",
+    )
     assert int(out.radii.max()) == 0 and float(out.alpha.max()) == 0.0
 
 
 def test_bad_shapes_raise_a_clear_error():
     scene = random_scene(4, 0)
     with pytest.raises(RasterizeError, match="quats"):
-        render(scene[0], scene[1][:, :3], *scene[2:], torch.eye(4, dtype=torch.float64),
-               intrinsics(8, 6), 8, 6, backend="torch")
+        render(
+            scene[0],
+            scene[1][:, :3],
+            *scene[2:],
+            torch.eye(4, dtype=torch.float64),
+            intrinsics(8, 6),
+            8,
+            6,
+            backend="torch",
+        )
     with pytest.raises(RasterizeError, match="backend"):
         render(*scene, torch.eye(4, dtype=torch.float64), intrinsics(8, 6), 8, 6, backend="nope")

@@ -77,10 +77,18 @@ def load_kitti_imu_gps() -> KittiImuGps:
     imu = _table("KittiEquivBiasedImu.txt", None, 1)
     gps = _table("KittiGps_converted.txt", ",", 1)
     return KittiImuGps(
-        imu[:, 0], imu[:, 1], imu[:, 2:5], imu[:, 5:8], gps[:, 0], gps[:, 1:4],
-        acc_sigma=meta[6], gyro_sigma=meta[7], integration_sigma=meta[8],
-        acc_bias_sigma=meta[9], gyro_bias_sigma=meta[10],
-    )  # fmt: skip
+        imu[:, 0],
+        imu[:, 1],
+        imu[:, 2:5],
+        imu[:, 5:8],
+        gps[:, 0],
+        gps[:, 1:4],
+        acc_sigma=meta[6],
+        gyro_sigma=meta[7],
+        integration_sigma=meta[8],
+        acc_bias_sigma=meta[9],
+        gyro_bias_sigma=meta[10],
+    )
 
 
 def imu_params(data: KittiImuGps) -> gtsam.PreintegrationParams:
@@ -143,11 +151,17 @@ def run_kitti_imu_gps(
     be.add_value(V(0), vel0)
     be.add_value(B(0), bias0)
     sig_rp, sig_yaw = 0.05, 0.3  # rad: the car starts about level, heading from two GPS fixes
-    be.add_factor(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([sig_rp, sig_rp, sig_yaw, 1.0, 1.0, 1.0]))))  # fmt: skip
+    be.add_factor(
+        gtsam.PriorFactorPose3(
+            X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(np.array([sig_rp, sig_rp, sig_yaw, 1.0, 1.0, 1.0]))
+        )
+    )
     be.add_factor(gtsam.PriorFactorVector(V(0), vel0, gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
-    be.add_factor(gtsam.PriorFactorConstantBias(B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([0.1] * 3 + [5e-5] * 3))))  # fmt: skip
+    be.add_factor(
+        gtsam.PriorFactorConstantBias(
+            B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1] * 3 + [5e-5] * 3))
+        )
+    )
     be.add_factor(gtsam.GPSFactor(X(0), data.gps_xyz[first], gps_noise))
     be.update()
 
@@ -164,8 +178,11 @@ def run_kitti_imu_gps(
         be.add_value(B(k), bias)
         be.add_factor(gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim))
         walk = np.sqrt(n) * np.array([data.acc_bias_sigma] * 3 + [data.gyro_bias_sigma] * 3)
-        be.add_factor(gtsam.BetweenFactorConstantBias(
-            B(k - 1), B(k), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(walk)))  # fmt: skip
+        be.add_factor(
+            gtsam.BetweenFactorConstantBias(
+                B(k - 1), B(k), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(walk)
+            )
+        )
         if used[k]:
             be.add_factor(gtsam.GPSFactor(X(k), data.gps_xyz[g1], gps_noise))
         be.update()
@@ -197,9 +214,7 @@ def load_stereo_vo(variant: str = "_large") -> StereoVO:
     obs = _table(f"VO_stereo_factors{variant}.txt", None, 0)
     if cal.shape != (6,) or poses.shape[1] != 17 or obs.shape[1] != 8:
         raise ExampleDataError(f"unexpected layout of the VO{variant} example files")
-    return StereoVO(
-        gtsam.Cal3_S2Stereo(*cal), poses[:, 0].astype(int), poses[:, 1:].reshape(-1, 4, 4), obs
-    )
+    return StereoVO(gtsam.Cal3_S2Stereo(*cal), poses[:, 0].astype(int), poses[:, 1:].reshape(-1, 4, 4), obs)
 
 
 def perturb_poses(T: np.ndarray, rot_sigma: float, trans_sigma: float, seed: int) -> np.ndarray:
@@ -243,7 +258,8 @@ def run_stereo_vo(
             if not be.has_value(L(lid)):
                 be.add_value(L(lid), pose.transformFrom(row[5:8]))
                 initial.insert(L(lid), pose.transformFrom(row[5:8]))
-            be.add_factor(gtsam.GenericStereoFactor3D(
-                gtsam.StereoPoint2(*row[2:5]), noise, X(pid), L(lid), data.calib))  # fmt: skip
+            be.add_factor(
+                gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(*row[2:5]), noise, X(pid), L(lid), data.calib)
+            )
         be.update()
     return be, initial

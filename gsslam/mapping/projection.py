@@ -59,6 +59,10 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:  # [N, 4] (w, x, y, z) -> [N, 3, 3]
     return R.reshape(q.shape[:-1] + (3, 3))
 
 
+def _row_times(v: Tensor, M: Tensor) -> Tensor:  # v [N, 3], M [N, 3, 3] -> v^T M [N, 3]
+    return v[:, 0:1] * M[:, 0] + v[:, 1:2] * M[:, 1] + v[:, 2:3] * M[:, 2]
+
+
 def check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width, height) -> None:
     n = means.shape[0] if means.dim() == 2 else -1
     expected = {
@@ -122,8 +126,8 @@ def project_gaussians(
 
     R_g = quat_to_rotmat(quats)  # [N, 3, 3] world <- gaussian
     # Sigma2d = (J W R S)(J W R S)^T; rows of A = J W R S:
-    A0 = (jw0[:, :, None] * R_g).sum(1) * scales  # [N, 3]
-    A1 = (jw1[:, :, None] * R_g).sum(1) * scales  # [N, 3]
+    A0 = _row_times(jw0, R_g) * scales  # [N, 3]
+    A1 = _row_times(jw1, R_g) * scales  # [N, 3]
     a = (A0 * A0).sum(-1) + LOW_PASS
     b = (A0 * A1).sum(-1)
     c = (A1 * A1).sum(-1) + LOW_PASS
@@ -136,7 +140,7 @@ def project_gaussians(
     m0 = (sd[:, 0] <= sd[:, 1]) & (sd[:, 0] <= sd[:, 2])
     m1 = ~m0 & (sd[:, 1] <= sd[:, 2])
     onehot = torch.stack([m0, m1, ~(m0 | m1)], dim=-1).to(dtype)  # [N, 3] first smallest axis
-    n_world = (R_g * onehot[:, None, :]).sum(-1)  # [N, 3]
+    n_world = R_g[:, :, 0] * onehot[:, :1] + R_g[:, :, 1] * onehot[:, 1:2] + R_g[:, :, 2] * onehot[:, 2:]
     n_cam = n_world @ R_cw.T
     facing = torch.where((n_cam * p_cam).sum(-1, keepdim=True).detach() > 0, -1.0, 1.0).to(dtype)
     normals = n_cam * facing

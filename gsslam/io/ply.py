@@ -19,9 +19,22 @@ from gsslam.errors import GsslamError
 
 SH_C0 = 0.28209479177387814
 _PLY_TYPES = {
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",
-    "char": "i1", "int8": "i1", "ushort": "u2", "uint16": "u2", "short": "i2", "int16": "i2",
-    "uint": "u4", "uint32": "u4", "int": "i4", "int32": "i4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+    "uchar": "u1",
+    "uint8": "u1",
+    "char": "i1",
+    "int8": "i1",
+    "ushort": "u2",
+    "uint16": "u2",
+    "short": "i2",
+    "int16": "i2",
+    "uint": "u4",
+    "uint32": "u4",
+    "int": "i4",
+    "int32": "i4",
 }
 
 
@@ -133,13 +146,27 @@ def read_ply(path: str | Path) -> GaussianPly:
     if n is None:
         raise PlyError(f"{path}: no vertex element")
     dt = np.dtype(props)
-    body = raw[end + len(b"end_header\n"):]
+    body = raw[end + len(b"end_header\n") :]
     if len(body) < n * dt.itemsize:
         raise PlyError(f"{path}: truncated, {len(body)} bytes for {n} vertices of {dt.itemsize} bytes")
     data = np.frombuffer(body, dtype=dt, count=n)
     names = set(dt.names)
-    need = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-            "rot_0", "rot_1", "rot_2", "rot_3"]
+    need = [
+        "x",
+        "y",
+        "z",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     missing = [k for k in need if k not in names]
     if missing:
         raise PlyError(f"{path}: not a 3D Gaussian PLY, missing properties {missing}")

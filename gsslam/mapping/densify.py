@@ -140,8 +140,14 @@ class DensifyStrategy:
             keep[order] = True
             n_capped = len(model) - self.max_gaussians
             model, state = _keep(model, state, keep)
-        stats = {"cloned": len(clone_idx), "split": len(split_idx), "pruned": n_pruned,
-                 "capped": n_capped, "before": n0, "after": len(model)}
+        stats = {
+            "cloned": len(clone_idx),
+            "split": len(split_idx),
+            "pruned": n_pruned,
+            "capped": n_capped,
+            "before": n0,
+            "after": len(model),
+        }
         return model, state, stats
 
     def _clone(self, model, state, idx):

@@ -52,9 +52,15 @@ def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
     w, x, y, z = q.unbind(-1)
     return torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     ).reshape(q.shape[:-1] + (3, 3))
@@ -80,8 +86,15 @@ class GaussianModel:
 
     def __post_init__(self) -> None:
         n = self.means.shape[0]
-        expected = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
-                    "sh_dc": (n, 3), "submap_id": (n,), "keyframe_id": (n,)}
+        expected = {
+            "means": (n, 3),
+            "quats": (n, 4),
+            "log_scales": (n, 3),
+            "opacity_logits": (n,),
+            "sh_dc": (n, 3),
+            "submap_id": (n,),
+            "keyframe_id": (n,),
+        }
         for name, shape in expected.items():
             got = tuple(getattr(self, name).shape)
             if got != shape:
@@ -106,8 +119,10 @@ class GaussianModel:
         """Isotropic Gaussians at ``points`` with the given colours and sizes."""
         n, dev = points.shape[0], points.device
         if rgb.shape != (n, 3) or scales.shape != (n,):
-            raise GaussianError(f"from_points: need rgb [{n}, 3] and scales [{n}], got "
-                                f"{list(rgb.shape)} and {list(scales.shape)}")
+            raise GaussianError(
+                f"from_points: need rgb [{n}, 3] and scales [{n}], got "
+                f"{list(rgb.shape)} and {list(scales.shape)}"
+            )
         if not 0.0 < opacity < 1.0:
             raise GaussianError(f"initial opacity must lie in (0, 1), got {opacity}")
         quats = torch.zeros(n, 4, device=dev)
@@ -163,8 +178,10 @@ class GaussianModel:
 
     def cat(self, other: GaussianModel) -> GaussianModel:
         return GaussianModel(
-            **{f.name: torch.cat([getattr(self, f.name).detach(), getattr(other, f.name).detach()])
-               for f in fields(self)}
+            **{
+                f.name: torch.cat([getattr(self, f.name).detach(), getattr(other, f.name).detach()])
+                for f in fields(self)
+            }
         )
 
     def to(self, device: str | torch.device) -> GaussianModel:
@@ -182,7 +199,9 @@ class GaussianModel:
             raise GaussianError(f"apply_transform needs a finite 4x4 Sim(3), got shape {T.shape}")
         R, t, s = split_sim3(T)
         if not (s > 0 and np.allclose(R @ R.T, np.eye(3), atol=1e-5)):
-            raise GaussianError("apply_transform: T_new_old is not a Sim(3) (scale * rotation, positive scale)")
+            raise GaussianError(
+                "apply_transform: T_new_old is not a Sim(3) (scale * rotation, positive scale)"
+            )
         mask = self.submap_id == int(submap_id)
         n = int(mask.sum())
         if n == 0:

@@ -47,10 +47,14 @@ def ssim_map(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 
     g = _gaussian_1d(window, sigma, a.device, a.dtype)
     n = stack.shape[1]
     pad = window // 2
-    blur = F.conv2d(F.pad(stack, [pad, pad, 0, 0], mode="replicate"), g.view(1, 1, 1, -1).expand(n, 1, 1, window),
-                    groups=n)
-    blur = F.conv2d(F.pad(blur, [0, 0, pad, pad], mode="replicate"), g.view(1, 1, -1, 1).expand(n, 1, window, 1),
-                    groups=n)[0]
+    blur = F.conv2d(
+        F.pad(stack, [pad, pad, 0, 0], mode="replicate"),
+        g.view(1, 1, 1, -1).expand(n, 1, 1, window),
+        groups=n,
+    )
+    blur = F.conv2d(
+        F.pad(blur, [0, 0, pad, pad], mode="replicate"), g.view(1, 1, -1, 1).expand(n, 1, window, 1), groups=n
+    )[0]
     mu_x, mu_y, xx, yy, xy = blur.split(c)
     sxx, syy, sxy = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
     c1, c2 = 0.01**2, 0.03**2
@@ -176,9 +180,7 @@ def robust_flow_nll(
     log_in = math.log(inlier_prior) - math.log(2 * math.pi * sigma**2) - 0.5 * r2 / sigma**2
     log_out = math.log(1.0 - inlier_prior) - 2.0 * math.log(outlier_range)
     log_p = torch.logaddexp(log_in, torch.full_like(log_in, log_out))
-    log_p0 = math.log(
-        inlier_prior / (2 * math.pi * sigma**2) + (1.0 - inlier_prior) / outlier_range**2
-    )
+    log_p0 = math.log(inlier_prior / (2 * math.pi * sigma**2) + (1.0 - inlier_prior) / outlier_range**2)
     return log_p0 - log_p
 
 
@@ -188,8 +190,9 @@ def sample_image(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     gx = (uv[:, 0] + 0.5) / w * 2 - 1
     gy = (uv[:, 1] + 0.5) / h * 2 - 1
     grid = torch.stack([gx, gy], dim=-1)[None, None]
-    out = F.grid_sample(img.permute(2, 0, 1)[None], grid, mode="bilinear", padding_mode="border",
-                        align_corners=False)
+    out = F.grid_sample(
+        img.permute(2, 0, 1)[None], grid, mode="bilinear", padding_mode="border", align_corners=False
+    )
     return out[0, :, 0].T
 
 
@@ -236,5 +239,7 @@ def flow_loss(
     w = usable.to(r.dtype) if weight is None else usable.to(r.dtype) * weight
     nll = robust_flow_nll(r, sigma, inlier_prior, outlier_range)
     loss = (nll * w).sum() / w.sum().clamp_min(1.0)
-    err = torch.where(usable & (w > 0), normalized_flow_error(r.detach(), f), torch.full_like(w, float("nan")))
+    err = torch.where(
+        usable & (w > 0), normalized_flow_error(r.detach(), f), torch.full_like(w, float("nan"))
+    )
     return loss, err, usable & (w > 0)

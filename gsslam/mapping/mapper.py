@@ -83,7 +83,9 @@ def _fill_depth(depth: torch.Tensor) -> torch.Tensor:  # [h, w] NaN holes -> [h,
     hole = ~np.isfinite(d)
     if not hole.any() or hole.all():
         return depth
-    filled = cv2.inpaint(np.nan_to_num(d, nan=0.0).astype(np.float32), hole.astype(np.uint8), 3, cv2.INPAINT_NS)
+    filled = cv2.inpaint(
+        np.nan_to_num(d, nan=0.0).astype(np.float32), hole.astype(np.uint8), 3, cv2.INPAINT_NS
+    )
     return torch.as_tensor(np.where(hole, filled, d), device=depth.device)
 
 
@@ -101,7 +103,9 @@ class GaussianMapper:
         self.K = torch.tensor(self.intrinsics.K, dtype=torch.float32, device=self.device)
         self.model = GaussianModel.empty(self.device)
         self.strategy = DensifyStrategy(
-            densify_error=cfg.densify_error, prune_error=cfg.prune_error, min_opacity=cfg.min_opacity,
+            densify_error=cfg.densify_error,
+            prune_error=cfg.prune_error,
+            min_opacity=cfg.min_opacity,
             max_gaussians=cfg.max_gaussians,
         )
         self.state = self.strategy.initialize_state(0, self.device)
@@ -157,8 +161,17 @@ class GaussianMapper:
     # ------------------------------------------------------------------ rendering
     def _render(self, T_cam_world: torch.Tensor, model: GaussianModel | None = None) -> RenderOutput:
         m = self.model if model is None else model
-        return render(m.means, m.quats, m.scales, m.opacities, m.rgb, T_cam_world, self.K,
-                      self.intrinsics.width, self.intrinsics.height)
+        return render(
+            m.means,
+            m.quats,
+            m.scales,
+            m.opacities,
+            m.rgb,
+            T_cam_world,
+            self.K,
+            self.intrinsics.width,
+            self.intrinsics.height,
+        )
 
     def render_pose(self, T_world_cam: np.ndarray) -> RenderOutput:
         """Render the map (no gradients) at the mapper resolution from a (rigid or Sim(3)) pose."""
@@ -186,7 +199,9 @@ class GaussianMapper:
         image = _resize(frame.image.astype(np.float32), w, h)
         if points_cam is not None:
             if points_cam.ndim != 3 or points_cam.shape[2] != 3:
-                raise MapperError(f"frame {frame.index}: points_cam must be [h, w, 3], got {points_cam.shape}")
+                raise MapperError(
+                    f"frame {frame.index}: points_cam must be [h, w, 3], got {points_cam.shape}"
+                )
             depth = _resize(points_cam[..., 2].astype(np.float32), w, h, nearest=True) * s
             if confidence is not None:
                 conf = _resize(confidence.astype(np.float32), w, h, nearest=True)
@@ -197,9 +212,14 @@ class GaussianMapper:
             raise MapperError(f"frame {frame.index}: need points_cam or a frame with depth to seed Gaussians")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
         kf = _Keyframe(
-            index=frame.index, submap_id=int(submap_id),
-            image=torch.as_tensor(image, device=self.device), depth=torch.as_tensor(depth, device=self.device),
-            R=R, t=t, scale=s, delta=torch.zeros(6, device=self.device),
+            index=frame.index,
+            submap_id=int(submap_id),
+            image=torch.as_tensor(image, device=self.device),
+            depth=torch.as_tensor(depth, device=self.device),
+            R=R,
+            t=t,
+            scale=s,
+            delta=torch.zeros(6, device=self.device),
         )
         if frame.index not in self._kfs:
             self._order.append(frame.index)
@@ -232,7 +252,8 @@ class GaussianMapper:
     def _pose_loss(self, out: RenderOutput, kf: _Keyframe) -> torch.Tensor:
         mask = out.alpha.detach() > 0.9
         return L.l1(out.color, kf.image, mask) + self.cfg.lambda_pose_depth * L.scale_invariant_depth(
-            out.depth, kf.depth, mask)
+            out.depth, kf.depth, mask
+        )
 
     @torch.no_grad()
     def _seed(self, kf: _Keyframe) -> int:
@@ -260,11 +281,14 @@ class GaussianMapper:
         T_wc = torch.linalg.inv(self._T_cam_world(kf))
         p_world = p_cam @ T_wc[:3, :3].T + T_wc[:3, 3]
         scales = z / K.fx * stride * 0.6
-        new = GaussianModel.from_points(p_world, kf.image[vv, uu], scales, kf.submap_id, kf.index,
-                                        opacity=self.cfg.init_opacity)
+        new = GaussianModel.from_points(
+            p_world, kf.image[vv, uu], scales, kf.submap_id, kf.index, opacity=self.cfg.init_opacity
+        )
         room = self.cfg.max_gaussians - len(self.model)
         if room <= 0:
-            _log.warning("Gaussian cap %d reached; keyframe %d adds nothing", self.cfg.max_gaussians, kf.index)
+            _log.warning(
+                "Gaussian cap %d reached; keyframe %d adds nothing", self.cfg.max_gaussians, kf.index
+            )
             return 0
         if len(new) > room:
             new = new.select(torch.randperm(len(new), generator=self._gen)[:room].to(self.device))
@@ -283,16 +307,22 @@ class GaussianMapper:
         self._kf(frame_a_index), self._kf(frame_b_index)
         H, W = self.full_intrinsics.height, self.full_intrinsics.width
         if flow.shape != (H, W, 2) or valid.shape != (H, W):
-            raise MapperError(f"flow must be [{H}, {W}, 2] and valid [{H}, {W}], got {flow.shape}, {valid.shape}")
+            raise MapperError(
+                f"flow must be [{H}, {W}, 2] and valid [{H}, {W}], got {flow.shape}, {valid.shape}"
+            )
         w, h = self.intrinsics.width, self.intrinsics.height
         f = _resize(np.nan_to_num(flow.astype(np.float32)), w, h)
         f = f * np.array([self.factor_x, self.factor_y], dtype=np.float32)
         v = _resize(valid.astype(np.float32), w, h) > 0.99
         self._flows[(frame_a_index, frame_b_index)] = (
-            torch.as_tensor(f, device=self.device), torch.as_tensor(v, device=self.device))
+            torch.as_tensor(f, device=self.device),
+            torch.as_tensor(v, device=self.device),
+        )
 
     # ------------------------------------------------------------------ graph feedback
-    def on_poses_updated(self, submap_poses: dict[int, np.ndarray], keyframe_poses: dict[int, np.ndarray]) -> int:
+    def on_poses_updated(
+        self, submap_poses: dict[int, np.ndarray], keyframe_poses: dict[int, np.ndarray]
+    ) -> int:
         """Follow the pose graph: move Gaussians of moved submaps, reset keyframe poses.
 
         ``submap_poses``: Sim(3) ``T_world_submap`` [4, 4] per submap id. The first time a submap id
@@ -322,7 +352,7 @@ class GaussianMapper:
 
     # ------------------------------------------------------------------ optimization
     def _window(self) -> list[int]:
-        return self._order[-self.cfg.window:]
+        return self._order[-self.cfg.window :]
 
     def optimize(self, iterations: int | None = None) -> dict:
         """Adam over the window's keyframes, then densify/prune; returns stats."""
@@ -335,8 +365,13 @@ class GaussianMapper:
         params = {k: v.detach().clone().requires_grad_(True) for k, v in self.model.params().items()}
         for k, v in params.items():
             setattr(self.model, k, v)
-        lrs = {"means": cfg.lr_means, "quats": cfg.lr_quats, "log_scales": cfg.lr_scales,
-               "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_colors}
+        lrs = {
+            "means": cfg.lr_means,
+            "quats": cfg.lr_quats,
+            "log_scales": cfg.lr_scales,
+            "opacity_logits": cfg.lr_opacity,
+            "sh_dc": cfg.lr_colors,
+        }
         groups = [{"params": [params[k]], "lr": lrs[k]} for k in params]
         # the oldest keyframe ever added fixes the gauge; the others may move a little
         pose_kfs = [i for i in win if cfg.pose_refinement and i != self._order[0]]
@@ -360,8 +395,15 @@ class GaussianMapper:
         active = torch.isin(self.model.keyframe_id, torch.tensor(win, device=self.device))
         self.model, self.state, dstats = self.strategy.step(self.model, self.state, active=active)
         dt = time.perf_counter() - t0
-        return {"iterations": iters, "seconds": dt, "ms_per_iteration": 1000 * dt / iters,
-                "psnr_first": first, "psnr_last": last, "num_gaussians": len(self.model), **dstats}
+        return {
+            "iterations": iters,
+            "seconds": dt,
+            "ms_per_iteration": 1000 * dt / iters,
+            "psnr_first": first,
+            "psnr_last": last,
+            "num_gaussians": len(self.model),
+            **dstats,
+        }
 
     def _step_loss(self, kf: _Keyframe, pose: bool, win: list[int]) -> tuple[torch.Tensor, float]:
         cfg, m = self.cfg, self.model
@@ -371,7 +413,8 @@ class GaussianMapper:
         loss = loss + cfg.lambda_depth * L.inverse_depth_l1(out.depth, kf.depth)
         if cfg.lambda_depth_normal > 0:
             loss = loss + cfg.lambda_depth_normal * L.depth_normal_consistency(
-                out.depth, out.normal, self.K, mask=out.alpha.detach() > 0.5)
+                out.depth, out.normal, self.K, mask=out.alpha.detach() > 0.5
+            )
         loss = loss + cfg.lambda_scale * L.scale_regularizer(m.log_scales)
         if pose:
             loss = loss + self._pose_loss(out, kf)
@@ -381,10 +424,20 @@ class GaussianMapper:
             if a != kf.index or b not in win or cfg.lambda_flow <= 0:
                 continue
             kb = self._kfs[b]
-            uv_b = self._project(m.means, self._T_cam_world(kb, with_delta=b in win and kb.delta.requires_grad))
+            uv_b = self._project(
+                m.means, self._T_cam_world(kb, with_delta=b in win and kb.delta.requires_grad)
+            )
             vis = self._visible(out)
-            fl, e, _ = L.flow_loss(out.means2d, uv_b, flow, valid, weight=vis.float(), sigma=cfg.flow_sigma_px,
-                                   inlier_prior=cfg.flow_inlier_prior, outlier_range=cfg.flow_outlier_range_px)
+            fl, e, _ = L.flow_loss(
+                out.means2d,
+                uv_b,
+                flow,
+                valid,
+                weight=vis.float(),
+                sigma=cfg.flow_sigma_px,
+                inlier_prior=cfg.flow_inlier_prior,
+                outlier_range=cfg.flow_outlier_range_px,
+            )
             loss = loss + cfg.lambda_flow * fl
             err = e if err is None else torch.where(torch.isfinite(e), e, err)
         with torch.no_grad():
@@ -401,7 +454,9 @@ class GaussianMapper:
     def _project(self, means: torch.Tensor, T_cam_world: torch.Tensor) -> torch.Tensor:  # [N, 3] -> [N, 2]
         p = means @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
         z = p[:, 2].clamp_min(1e-3)
-        return torch.stack([self.K[0, 0] * p[:, 0] / z + self.K[0, 2], self.K[1, 1] * p[:, 1] / z + self.K[1, 2]], -1)
+        return torch.stack(
+            [self.K[0, 0] * p[:, 0] / z + self.K[0, 2], self.K[1, 1] * p[:, 1] / z + self.K[1, 2]], -1
+        )
 
     @torch.no_grad()
     def _visible(self, out: RenderOutput) -> torch.Tensor:
@@ -411,19 +466,23 @@ class GaussianMapper:
 
     # ------------------------------------------------------------------ outputs
     @torch.no_grad()
-    def _render_kf(self, frame_index: int) -> RenderOutput:
+    def render_keyframe(self, frame_index: int) -> RenderOutput:
+        """Render a keyframe (with its refined pose) at the mapper resolution."""
         return self._render(self._T_cam_world(self._kf(frame_index)))
+
+    def keyframe_image(self, frame_index: int) -> np.ndarray:  # [h, w, 3] at the mapper resolution
+        return self._kf(frame_index).image.cpu().numpy()
 
     def rendered_depth(self, frame_index: int) -> np.ndarray:
         """Rendered z-depth [H, W] at full resolution, world units, NaN where the map is empty."""
-        out = self._render_kf(frame_index)
+        out = self.render_keyframe(frame_index)
         d = torch.where(out.alpha > 0.5, out.depth, torch.full_like(out.depth, float("nan")))
         W, H = self.full_intrinsics.width, self.full_intrinsics.height
         return _resize(d.cpu().numpy().astype(np.float32), W, H, nearest=True)
 
     def depth_feedback(self, frame_index: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to ``n_points`` well-covered pixels of a keyframe: (uv [N, 2] full-res px, depth [N] world)."""
-        out = self._render_kf(frame_index)
+        out = self.render_keyframe(frame_index)
         ok = (out.alpha > 0.95) & (out.depth > 0)
         vv, uu = (a.cpu().numpy() for a in torch.nonzero(ok, as_tuple=True))
         if len(vv) > n_points:
@@ -435,56 +494,18 @@ class GaussianMapper:
 
     def evaluate(self, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
         """PSNR / SSIM at the mapper resolution of keyframes and held-out frames with a pose."""
-        from gsslam.eval.image_metrics import psnr, ssim
+        from gsslam.mapping.outputs import evaluate_map
 
-        res = {"keyframes": [], "other": []}
-        per_frame = {}
-        for fr in frames:
-            if fr.index not in poses:
-                continue
-            out = self.render_pose(poses[fr.index])
-            img = _resize(fr.image.astype(np.float32), self.intrinsics.width, self.intrinsics.height)
-            ren = out.color.clamp(0, 1).cpu().numpy()
-            p, s = psnr(ren, img), ssim(ren, img)
-            per_frame[fr.index] = p
-            res["keyframes" if fr.index in self._kfs else "other"].append((p, s))
-        stats: dict = {"per_frame_psnr": per_frame, "width": self.intrinsics.width, "height": self.intrinsics.height}
-        for key, vals in res.items():
-            stats[f"n_{key}"] = len(vals)
-            stats[f"psnr_{key}"] = float(np.mean([v[0] for v in vals])) if vals else float("nan")
-            stats[f"ssim_{key}"] = float(np.mean([v[1] for v in vals])) if vals else float("nan")
-        return stats
+        return evaluate_map(self, frames, poses)
 
     def save_ply(self, path: str | Path) -> int:
         """Write the map as a 3DGS PLY; returns the file size in bytes."""
-        from gsslam.io.ply import GaussianPly, write_ply
+        from gsslam.mapping.outputs import save_map_ply
 
-        m = self.model.detached().to("cpu")
-        g = GaussianPly(means=m.means.numpy(), quats_wxyz=m.normalized_quats.numpy(),
-                        log_scales=m.log_scales.numpy(), opacity_logits=m.opacity_logits.numpy(),
-                        f_dc=m.sh_dc.numpy())
-        return write_ply(path, g)
+        return save_map_ply(self.model, path)
 
     def render_keyframe_panels(self, out_dir: str | Path, n: int = 4) -> list[Path]:
         """Write ``n`` PNGs, input | render | depth (turbo colour map), for keyframes spread over the run."""
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        if not self._order:
-            return []
-        picks = sorted({self._order[int(i)] for i in np.linspace(0, len(self._order) - 1, min(n, len(self._order)))})
-        paths = []
-        for idx in picks:
-            out = self._render_kf(idx)
-            img = (self._kfs[idx].image.cpu().numpy() * 255).astype(np.uint8)
-            ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
-            d = out.depth.cpu().numpy()
-            valid = out.alpha.cpu().numpy() > 0.5
-            lo, hi = (np.percentile(d[valid], [2, 98]) if valid.any() else (0.0, 1.0))
-            d8 = (np.clip((d - lo) / max(hi - lo, 1e-6), 0, 1) * 255).astype(np.uint8)
-            dc = cv2.applyColorMap(d8, cv2.COLORMAP_TURBO)
-            dc[~valid] = 0
-            panel = np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1)
-            p = out_dir / f"keyframe_{idx:06d}.png"
-            cv2.imwrite(str(p), panel)
-            paths.append(p)
-        return paths
+        from gsslam.mapping.outputs import keyframe_panels
+
+        return keyframe_panels(self, out_dir, n)

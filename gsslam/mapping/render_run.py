@@ -31,8 +31,9 @@ def save_intrinsics(intrinsics: CameraIntrinsics, path: str | Path) -> None:
     """Write ``intrinsics.yaml`` (pinhole, no distortion) for :func:`render_run`."""
     i = intrinsics
     data = {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "width": i.width, "height": i.height}
-    Path(path).write_text(yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v)
-                                          for k, v in data.items()}))
+    Path(path).write_text(
+        yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v) for k, v in data.items()})
+    )
 
 
 def load_intrinsics(path: str | Path) -> CameraIntrinsics:
@@ -41,8 +42,9 @@ def load_intrinsics(path: str | Path) -> CameraIntrinsics:
         raise RenderRunError(f"{p} not found; the run must save its camera with save_intrinsics()")
     d = yaml.safe_load(p.read_text()) or {}
     try:
-        return CameraIntrinsics(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]),
-                                int(d["width"]), int(d["height"]))
+        return CameraIntrinsics(
+            float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"])
+        )
     except KeyError as e:
         raise RenderRunError(f"{p}: missing key {e}; need fx, fy, cx, cy, width, height") from None
 
@@ -56,7 +58,9 @@ def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N]
             continue
         v = line.split()
         if len(v) != 8:
-            raise RenderRunError(f"{path}:{n}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v)} values")
+            raise RenderRunError(
+                f"{path}:{n}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v)} values"
+            )
         x = np.array([float(a) for a in v])
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_rot(x[4:8]), x[1:4]
@@ -72,6 +76,7 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
     """
     from gsslam.io.ply import read_ply
     from gsslam.mapping.gaussians import SH_C0
+    from gsslam.mapping.outputs import depth_colormap
     from gsslam.mapping.rasterize import render
 
     run_dir, out_dir = Path(run_dir), Path(out_dir)
@@ -83,7 +88,9 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
     max_side = 160
     cfg_path = run_dir / "config.yaml"
     if cfg_path.is_file():
-        max_side = int(((yaml.safe_load(cfg_path.read_text()) or {}).get("mapper") or {}).get("max_side", 160))
+        max_side = int(
+            ((yaml.safe_load(cfg_path.read_text()) or {}).get("mapper") or {}).get("max_side", 160)
+        )
     intr = intr.scaled(min(1.0, max_side / max(intr.width, intr.height)))
     K = torch.tensor(intr.K, dtype=torch.float32)
     means = torch.as_tensor(g.means)
@@ -98,11 +105,7 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
         with torch.no_grad():
             out = render(means, quats, scales, opac, rgb, T_cw, K, intr.width, intr.height)
         color = (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)[..., ::-1]
-        d, valid = out.depth.numpy(), out.alpha.numpy() > 0.5
-        lo, hi = np.percentile(d[valid], [2, 98]) if valid.any() else (0.0, 1.0)
-        dc = cv2.applyColorMap((np.clip((d - lo) / max(hi - lo, 1e-6), 0, 1) * 255).astype(np.uint8),
-                               cv2.COLORMAP_TURBO)
-        dc[~valid] = 0
+        dc = depth_colormap(out.depth.numpy(), out.alpha.numpy() > 0.5)
         cv2.imwrite(str(out_dir / f"render_{i:06d}_{ts[i]:.6f}.png"), np.concatenate([color, dc], axis=1))
         count += 1
     _log.info("rendered %d of %d poses (%dx%d) to %s", count, len(poses), intr.width, intr.height, out_dir)

@@ -13,8 +13,14 @@ from gsslam.mapping.gaussians import GaussianModel
 
 def _model(n: int) -> GaussianModel:
     g = torch.Generator().manual_seed(0)
-    return GaussianModel.from_points(torch.randn(n, 3, generator=g), torch.rand(n, 3, generator=g),
-                                     torch.full((n,), 0.05), submap_id=0, keyframe_id=0, opacity=0.5)
+    return GaussianModel.from_points(
+        torch.randn(n, 3, generator=g),
+        torch.rand(n, 3, generator=g),
+        torch.full((n,), 0.05),
+        submap_id=0,
+        keyframe_id=0,
+        opacity=0.5,
+    )
 
 
 def _observe(strategy, state, errors, radii, times=3):
@@ -63,7 +69,9 @@ def test_unseen_gaussians_are_pruned_only_when_active_and_old():
     m = _model(4)
     state = s.initialize_state(4)
     active = torch.tensor([True, True, False, False])
-    s.update_state(state, torch.tensor([0.1, float("nan"), float("nan"), float("nan")]), torch.tensor([2.0, 0, 0, 0]))
+    s.update_state(
+        state, torch.tensor([0.1, float("nan"), float("nan"), float("nan")]), torch.tensor([2.0, 0, 0, 0])
+    )
     m, state, st = s.step(m, state, active=active)
     assert len(m) == 4  # too young
     m, state, st = s.step(m, state, active=active)

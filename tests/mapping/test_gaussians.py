@@ -14,8 +14,13 @@ from gsslam.mapping.gaussians import GaussianError, GaussianModel, quat_to_matri
 
 def _model(n: int, seed: int = 0) -> GaussianModel:
     g = torch.Generator().manual_seed(seed)
-    m = GaussianModel.from_points(torch.randn(n, 3, generator=g), torch.rand(n, 3, generator=g),
-                                  0.01 + torch.rand(n, generator=g) * 0.1, submap_id=0, keyframe_id=0)
+    m = GaussianModel.from_points(
+        torch.randn(n, 3, generator=g),
+        torch.rand(n, 3, generator=g),
+        0.01 + torch.rand(n, generator=g) * 0.1,
+        submap_id=0,
+        keyframe_id=0,
+    )
     m.quats = torch.randn(n, 4, generator=g)
     m.log_scales = torch.randn(n, 3, generator=g) * 0.3 - 3
     return m
@@ -78,4 +83,6 @@ def test_select_and_cat_keep_fields_aligned():
     both = sub.cat(m)
     assert len(both) == 12 and both.size_bytes() == 12 * 17 * 4
     with pytest.raises(GaussianError):
-        GaussianModel(m.means, m.quats[:3], m.log_scales, m.opacity_logits, m.sh_dc, m.submap_id, m.keyframe_id)
+        GaussianModel(
+            m.means, m.quats[:3], m.log_scales, m.opacity_logits, m.sh_dc, m.submap_id, m.keyframe_id
+        )

@@ -12,9 +12,12 @@ def _random(n: int, n_rest: int = 0) -> GaussianPly:
     rng = np.random.default_rng(0)
     q = rng.normal(size=(n, 4))
     return GaussianPly(
-        means=rng.normal(size=(n, 3)), quats_wxyz=q / np.linalg.norm(q, axis=1, keepdims=True),
-        log_scales=rng.normal(size=(n, 3)) - 4, opacity_logits=rng.normal(size=n),
-        f_dc=rng.normal(size=(n, 3)), f_rest=rng.normal(size=(n, n_rest)),
+        means=rng.normal(size=(n, 3)),
+        quats_wxyz=q / np.linalg.norm(q, axis=1, keepdims=True),
+        log_scales=rng.normal(size=(n, 3)) - 4,
+        opacity_logits=rng.normal(size=n),
+        f_dc=rng.normal(size=(n, 3)),
+        f_rest=rng.normal(size=(n, n_rest)),
     )
 
 
@@ -34,8 +37,25 @@ def test_header_is_the_standard_3dgs_layout(tmp_path):
     header = raw[: raw.index(b"end_header\n")].decode().splitlines()
     assert header[:3] == ["ply", "format binary_little_endian 1.0", "element vertex 3"]
     props = [ln.split()[2] for ln in header if ln.startswith("property float")]
-    assert props == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-                     "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    assert props == [
+        "x",
+        "y",
+        "z",
+        "nx",
+        "ny",
+        "nz",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     assert len(raw) - len(b"\n".join(h.encode() for h in header)) - len(b"\nend_header\n") == 3 * 17 * 4
 
 
@@ -51,8 +71,9 @@ def test_errors(tmp_path):
     (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\nend_header\n")
     with pytest.raises(PlyError, match="binary_little_endian"):
         read_ply(tmp_path / "a.ply")
-    (tmp_path / "b.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\n"
-                                     b"property float x\nend_header\n\0\0\0\0")
+    (tmp_path / "b.ply").write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nend_header\n\0\0\0\0"
+    )
     with pytest.raises(PlyError, match="missing properties"):
         read_ply(tmp_path / "b.ply")
     with pytest.raises(PlyError):

@@ -1,0 +1,89 @@
+"""Outputs of a :class:`gsslam.mapping.mapper.GaussianMapper`: image metrics, PLY, keyframe panels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from gsslam.mapping.gaussians import GaussianModel
+from gsslam.types import Frame
+
+if TYPE_CHECKING:
+    from gsslam.mapping.mapper import GaussianMapper
+
+
+def _resize_image(img: np.ndarray, w: int, h: int) -> np.ndarray:
+    if img.shape[:2] == (h, w):
+        return img
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def depth_colormap(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [H, W], [H, W] -> [H, W, 3] BGR
+    """Turbo colour map over the 2nd..98th percentile of the valid depths; black elsewhere."""
+    lo, hi = np.percentile(depth[valid], [2, 98]) if valid.any() else (0.0, 1.0)
+    d8 = (np.clip((depth - lo) / max(hi - lo, 1e-6), 0, 1) * 255).astype(np.uint8)
+    dc = cv2.applyColorMap(d8, cv2.COLORMAP_TURBO)
+    dc[~valid] = 0
+    return dc
+
+
+def evaluate_map(mapper: GaussianMapper, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
+    """PSNR / SSIM (gsslam.eval.image_metrics) of renders vs images resized to the mapper resolution."""
+    from gsslam.eval.image_metrics import psnr, ssim
+
+    w, h = mapper.intrinsics.width, mapper.intrinsics.height
+    res: dict[str, list] = {"keyframes": [], "other": []}
+    per_frame = {}
+    for fr in frames:
+        if fr.index not in poses:
+            continue
+        out = mapper.render_pose(poses[fr.index])
+        img = _resize_image(fr.image.astype(np.float32), w, h)
+        ren = out.color.clamp(0, 1).cpu().numpy()
+        p, s = psnr(ren, img), ssim(ren, img)
+        per_frame[fr.index] = p
+        res["keyframes" if fr.index in mapper.keyframe_indices else "other"].append((p, s))
+    stats: dict = {"per_frame_psnr": per_frame, "width": w, "height": h}
+    for key, vals in res.items():
+        stats[f"n_{key}"] = len(vals)
+        stats[f"psnr_{key}"] = float(np.mean([v[0] for v in vals])) if vals else float("nan")
+        stats[f"ssim_{key}"] = float(np.mean([v[1] for v in vals])) if vals else float("nan")
+    return stats
+
+
+def save_map_ply(model: GaussianModel, path: str | Path) -> int:
+    """Write ``model`` as a 3DGS PLY (unit quaternions); returns the file size in bytes."""
+    from gsslam.io.ply import GaussianPly, write_ply
+
+    m = model.detached().to("cpu")
+    g = GaussianPly(
+        means=m.means.numpy(),
+        quats_wxyz=m.normalized_quats.numpy(),
+        log_scales=m.log_scales.numpy(),
+        opacity_logits=m.opacity_logits.numpy(),
+        f_dc=m.sh_dc.numpy(),
+    )
+    return write_ply(path, g)
+
+
+def keyframe_panels(mapper: GaussianMapper, out_dir: str | Path, n: int = 4) -> list[Path]:
+    """``n`` PNGs ``input | render | depth`` at the mapper resolution, keyframes spread over the run."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    order = mapper.keyframe_indices
+    if not order or n <= 0:
+        return []
+    picks = sorted({order[int(i)] for i in np.linspace(0, len(order) - 1, min(n, len(order)))})
+    paths = []
+    for idx in picks:
+        out = mapper.render_keyframe(idx)
+        img = (mapper.keyframe_image(idx) * 255).astype(np.uint8)
+        ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+        dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
+        p = out_dir / f"keyframe_{idx:06d}.png"
+        cv2.imwrite(str(p), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
+        paths.append(p)
+    return paths

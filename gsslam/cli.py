@@ -94,7 +94,14 @@ def run_cmd(
     from gsslam.pipeline import run_sequence
 
     cfg = load_config(config, set_ or [], mode=mode)
-    ds_kwargs = {"intrinsics_file": intrinsics} if intrinsics is not None else {}
+    ds_kwargs = {}
+    if intrinsics is not None:
+        if dataset not in ("images", "tum"):
+            raise typer.BadParameter(
+                f"--intrinsics is for --dataset images or tum; {dataset} reads its own calibration",
+                param_hint="--intrinsics",
+            )
+        ds_kwargs["intrinsics_file"] = intrinsics
     bar = None
     callback = None
     if progress:

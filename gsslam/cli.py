@@ -173,6 +173,21 @@ def bench_pipeline(
     _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
 
 
+@bench_app.command("mapper")
+def bench_mapper(
+    path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,
+    max_frames: Annotated[int, typer.Option()] = 60,
+    kf_every: Annotated[int, typer.Option(help="Keyframe every N frames (ground-truth poses).")] = 10,
+    iterations: Annotated[int, typer.Option(help="Optimisation steps per keyframe.")] = 30,
+    sides: Annotated[str, typer.Option(help="Comma-separated mapper resolutions (max side, px).")] = "120,160",
+) -> None:
+    """Mapper alone on ground-truth poses: PSNR, map size, time per keyframe for each resolution."""
+    _bench(
+        "mapper", path=path, max_frames=max_frames, kf_every=kf_every, iterations=iterations,
+        sides=tuple(int(s) for s in sides.split(",")),
+    )  # fmt: skip
+
+
 @bench_app.command("loop")
 def bench_loop(
     sizes: Annotated[str, typer.Option(help="Comma-separated submap counts.")] = "10,100,500",

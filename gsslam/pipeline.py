@@ -252,6 +252,8 @@ class Pipeline:
                 bw = self.flow(tgt.image, src.image)
                 valid = forward_backward_mask(fw, bw, self.cfg.flow.fb_threshold_px)
                 kf = self.keyframes[src.index]
+                if not (self.chains[kf.chain].encodings[kf.submap].confidence[kf.position] > 0).any():
+                    continue  # a zero-parallax placeholder depth (mono) is no geometry to project
                 depth = cv2.resize(kf.depth, (self.intrinsics.width, self.intrinsics.height),
                                    interpolation=cv2.INTER_NEAREST)
                 corr = correspondences_from_flow(src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng)

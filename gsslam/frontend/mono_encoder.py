@@ -37,7 +37,7 @@ from gsslam.frontend.encoder import (
 )
 from gsslam.frontend.flow import FlowEstimator, compose_flows, forward_backward_mask, textured_mask
 from gsslam.frontend.pose_estimation import pnp, sample_matches
-from gsslam.frontend.two_view import bundle_adjust, rotation_from_homography, triangulate_rays, two_view_pose
+from gsslam.frontend.two_view import bundle_adjust, triangulate_rays, two_view_pose
 from gsslam.geometry import backproject, depth_to_points, invert_T
 from gsslam.types import Frame, SubmapEncoding
 
@@ -170,7 +170,8 @@ class MonoEncoder:
         if sd is not None:  # fill frame 0 from the shared depth where triangulation had nothing
             fill = ~np.isfinite(points[0, ..., 2]) & np.isfinite(sd)
             points[0][fill] = depth_to_points(K, sd)[fill]
-            conf[0][fill] = PROPAGATED_CONFIDENCE
+            conf[0][fill] = 0.0 if _is_constant(sd) else PROPAGATED_CONFIDENCE
+        self._fill_missing_depth(points, conf, bw, T_local, K, meta)
         meta.update(
             reference_frame=ref,
             scale=s * g,
@@ -223,8 +224,44 @@ class MonoEncoder:
             )
         return points, conf
 
+    # -- depth that every frame must have ----------------------------------------------------
+    def _propagate(self, P0, bw_i, T_i_0):
+        """Frame-0 points [h, w, 3] carried into frame i through its backward flow i -> 0 and ``T_i_0``."""
+        h, w = P0.shape[:2]
+        tgt = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1) + np.nan_to_num(bw_i, nan=-1e6)
+        ti = np.round(tgt).astype(int)
+        inside = (ti[..., 0] >= 0) & (ti[..., 0] < w) & (ti[..., 1] >= 0) & (ti[..., 1] < h)
+        X0 = np.full((h, w, 3), np.nan)
+        X0[inside] = P0[ti[inside][:, 1], ti[inside][:, 0]]
+        Xi = X0.reshape(-1, 3) @ T_i_0[:3, :3].T + T_i_0[:3, 3]
+        Xi[~(Xi[:, 2] > 0)] = np.nan
+        return Xi.reshape(h, w, 3)
+
+    def _fill_missing_depth(self, points, conf, bw, T_local, K, meta):
+        """A frame whose triangulation gave (almost) nothing gets frame 0's depth carried into it.
+
+        Every keyframe of a submap may become the shared frame of the next one, whose scale is
+        chained through this depth: a submap must never leave a frame without depth.
+        """
+        for i in range(1, len(points)):
+            if np.isfinite(points[i, ..., 2]).sum() >= self.cfg.min_inliers:
+                continue
+            Xi = self._propagate(points[0], bw[i], invert_T(T_local[i]))
+            points[i] = Xi
+            conf[i] = np.where(np.isfinite(Xi[..., 2]), np.minimum(conf[0], PROPAGATED_CONFIDENCE), 0.0)
+            meta.setdefault("depth_propagated", []).append(i)
+            if np.isfinite(Xi[..., 2]).sum() < self.cfg.min_inliers:  # no flow either: frame 0 as a plane
+                z0 = float(np.nanmedian(points[0, ..., 2])) if np.isfinite(points[0, ..., 2]).any() else 1.0
+                points[i] = depth_to_points(K, np.full(points.shape[1:3], z0, np.float32))
+                conf[i] = 0.0
+                meta["placeholder_depth"] = True
+
     # -- low parallax / rotation / no texture -------------------------------------------------
     def _degenerate(self, frames, imgs, fw, bw, valid, sd, intr, meta) -> SubmapEncoding:
+        """No two-view geometry. Poses by PnP against the shared depth (or, without one, against a
+        unit-depth plane: the chain's unit convention "median depth 1"); with zero parallax the depth
+        is unobservable and the plane's depth is a placeholder with confidence 0 (``meta
+        ["placeholder_depth"]``) that keeps the scale of the chain and the next submap's shared frame."""
         n, (h, w), K = len(frames), imgs[0].shape[:2], intr.K
         meta["degenerate"] = True
         T_local = np.tile(np.eye(4), (n, 1, 1))
@@ -238,40 +275,32 @@ class MonoEncoder:
                 [f.index for f in frames],
             )
             return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
-        if sd is not None and np.isfinite(sd).sum() >= self.cfg.min_inliers:
+        placeholder = sd is None or np.isfinite(sd).sum() < self.cfg.min_inliers or _is_constant(sd)
+        if placeholder:
+            meta["reason"] = "low_parallax_unit_depth"
+            meta["placeholder_depth"] = True
+            z = 1.0 if sd is None or not np.isfinite(sd).any() else float(np.nanmedian(sd))
+            sd = np.full((h, w), z, np.float32)
+            c0 = 0.0
+        else:
             meta["reason"] = "low_parallax_shared_depth"
             meta["scale_source"] = "shared_depth"
-            P0 = depth_to_points(K, sd)
-            points[0], conf[0] = P0, np.where(np.isfinite(sd), PROPAGATED_CONFIDENCE, 0.0)
-            for i in range(1, n):
-                uv0, uvi, z = sample_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
-                res = pnp(
-                    backproject(K, uv0, z), uvi, K, 2.0 * self.cfg.ransac_threshold_px, self.cfg.min_inliers
-                )
-                if res.T_tgt_src is None:
-                    meta["pnp_failed"].append(i)
-                    T_local[i] = T_local[i - 1]
-                    continue
+            c0 = PROPAGATED_CONFIDENCE
+        P0 = depth_to_points(K, sd)
+        points[0], conf[0] = P0, np.where(np.isfinite(sd), c0, 0.0)
+        for i in range(1, n):
+            uv0, uvi, z = sample_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
+            thr = 2.0 * self.cfg.ransac_threshold_px
+            res = pnp(backproject(K, uv0, z), uvi, K, thr, self.cfg.min_inliers)
+            if res.T_tgt_src is None:
+                meta["pnp_failed"].append(i)
+                T_local[i] = T_local[i - 1]
+            else:
                 T_local[i] = invert_T(res.T_tgt_src)
-                # propagate: pixel of i -> its frame-0 match (backward chain) -> shared point -> frame i
-                tgt = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1) + np.nan_to_num(bw[i], nan=-1e6)
-                ti = np.round(tgt).astype(int)
-                inside = (ti[..., 0] >= 0) & (ti[..., 0] < w) & (ti[..., 1] >= 0) & (ti[..., 1] < h)
-                X0 = np.full((h, w, 3), np.nan)
-                X0[inside] = P0[ti[inside][:, 1], ti[inside][:, 0]]
-                Xi = X0.reshape(-1, 3) @ res.T_tgt_src[:3, :3].T + res.T_tgt_src[:3, 3]
-                points[i] = Xi.reshape(h, w, 3)
-                conf[i] = np.where(np.isfinite(points[i, ..., 2]), PROPAGATED_CONFIDENCE, 0.0)
-        else:
-            meta["reason"] = "low_parallax_rotation_only"
-            for i in range(1, n):
-                uv0, uvi, _ = sample_matches(fw[i], valid[i], None, self.cfg.max_points_per_frame, self.rng)
-                R = rotation_from_homography(K, uv0, uvi)
-                if R is None:
-                    meta["pnp_failed"].append(i)
-                    T_local[i] = T_local[i - 1]
-                else:
-                    T_local[i, :3, :3] = R.T
+        for i in range(1, n):  # a placeholder stays a constant plane, so the next submap knows it as one
+            points[i] = P0 if placeholder else self._propagate(P0, bw[i], invert_T(T_local[i]))
+            conf[i] = np.where(np.isfinite(points[i, ..., 2]), c0, 0.0)
+        self._fill_missing_depth(points, conf, bw, T_local, K, meta)
         log.warning(
             "mono encoder: no reliable two-view geometry in keyframes %s (%s)",
             [f.index for f in frames],
@@ -279,6 +308,12 @@ class MonoEncoder:
         )
         meta["depth_stats"] = [robust_depth_stats(p[..., 2]) for p in points]
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
+
+
+def _is_constant(depth: np.ndarray) -> bool:  # [h, w]
+    """A depth map without structure (a placeholder plane handed back as shared depth)."""
+    z = depth[np.isfinite(depth)]
+    return len(z) > 0 and float(z.max() - z.min()) <= 1e-6 * float(abs(z).max())
 
 
 register_encoder("mono", lambda cfg, flow: MonoEncoder(cfg, flow))

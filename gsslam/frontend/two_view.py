@@ -12,8 +12,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 
 from gsslam.geometry import invert_T
 
@@ -141,6 +139,23 @@ def rotation_from_homography(K: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray) 
     return R
 
 
+def _skew(v: np.ndarray) -> np.ndarray:  # [N, 3] -> [N, 3, 3]
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
+
+
+def _huber_weights(r: np.ndarray, k: float) -> np.ndarray:  # [M, 2] -> [M] IRLS weights
+    n = np.linalg.norm(r, axis=1)
+    return np.where(n <= k, 1.0, k / np.maximum(n, 1e-12))
+
+
+def _huber_cost(r: np.ndarray, k: float) -> float:  # [M, 2]
+    n = np.linalg.norm(r, axis=1)
+    return float(np.sum(np.where(n <= k, 0.5 * n**2, k * (n - 0.5 * k))))
+
+
 def bundle_adjust(
     K: np.ndarray,
     T_i_0: np.ndarray,  # [F, 4, 4] initial poses (frame 0 -> frame i); T_i_0[0] = I is held fixed
@@ -148,12 +163,16 @@ def bundle_adjust(
     inv_depth: np.ndarray,  # [N] initial inverse depths in frame 0
     obs_uv: np.ndarray,  # [F, N, 2] observations (NaN where not seen)
     threshold_px: float,
-    max_nfev: int = 30,
+    max_iterations: int = 20,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Joint refinement of the poses and frame-0 inverse depths (Huber loss, sparse Jacobian).
+    """Joint refinement of the poses and frame-0 inverse depths: Levenberg-Marquardt with Huber
+    weights (IRLS), analytic Jacobians and the Schur complement on the inverse depths.
 
-    Returns (T_i_0 [F, 4, 4], inv_depth [N]). Scale is not fixed by the cost; it stays close to
-    the initial one because the solver takes small trust-region steps from it.
+    Each observation of track j in frame i touches one pose (6 parameters, left perturbation
+    ``R <- exp(dw) R``, ``t <- t + dt``) and one inverse depth, so the depth block is diagonal and
+    the reduced camera system is only ``6 (F - 1)`` wide. Frame 0 is exact (the tracks are defined
+    there). Returns (T_i_0 [F, 4, 4], inv_depth [N]). The scale is a gauge freedom of this cost; the
+    damping keeps it close to the initial one and callers restore it.
     """
     F, N = obs_uv.shape[:2]
     seen = np.isfinite(obs_uv).all(-1)  # [F, N]
@@ -162,49 +181,76 @@ def bundle_adjust(
     if len(fi) < 6 * (F - 1) + 10:
         return T_i_0, inv_depth
     b = rays(K, uv0)  # [N, 3]
-    x0 = np.concatenate(
-        [np.concatenate([cv2.Rodrigues(T[:3, :3])[0].ravel(), T[:3, 3]]) for T in T_i_0[1:]] + [inv_depth]
-    )
+    fx, fy = K[0, 0], K[1, 1]
+    target = obs_uv[fi, pj]  # [M, 2]
+    R = T_i_0[:, :3, :3].copy()
+    t = T_i_0[:, :3, 3].copy()
+    rho = np.maximum(np.asarray(inv_depth, np.float64).copy(), 1e-6)
+    P = 6 * (F - 1)
 
-    def unpack(x):
-        P = x[: 6 * (F - 1)].reshape(F - 1, 6)
-        return P, x[6 * (F - 1) :]
-
-    def residual(x):
-        P, rho = unpack(x)
-        Rs = np.stack([np.eye(3)] + [cv2.Rodrigues(p[:3])[0] for p in P])
-        ts = np.concatenate([np.zeros((1, 3)), P[:, 3:]])
-        X = b[pj] / rho[pj, None]
-        Xc = np.einsum("nij,nj->ni", Rs[fi], X) + ts[fi]
+    def residuals(R, t, rho):
+        RX = np.einsum("mij,mj->mi", R[fi], b[pj]) / rho[pj, None]
+        Xc = RX + t[fi]
         z = np.where(Xc[:, 2] > 1e-9, Xc[:, 2], 1e-9)
-        u = K[0, 0] * Xc[:, 0] / z + K[0, 2] - obs_uv[fi, pj, 0]
-        v = K[1, 1] * Xc[:, 1] / z + K[1, 2] - obs_uv[fi, pj, 1]
-        return np.concatenate([u, v])
+        r = np.stack([fx * Xc[:, 0] / z + K[0, 2], fy * Xc[:, 1] / z + K[1, 2]], 1) - target
+        return r, RX, Xc, z
 
-    n_obs = len(fi)
-    S = lil_matrix((2 * n_obs, len(x0)), dtype=np.int8)
-    rows = np.arange(n_obs)
-    for k in range(6):
-        S[rows, 6 * (fi - 1) + k] = 1
-        S[rows + n_obs, 6 * (fi - 1) + k] = 1
-    S[rows, 6 * (F - 1) + pj] = 1
-    S[rows + n_obs, 6 * (F - 1) + pj] = 1
-    lb = np.full(len(x0), -np.inf)
-    lb[6 * (F - 1) :] = 1e-6
-    sol = least_squares(
-        residual,
-        np.maximum(x0, lb + 1e-12),
-        jac_sparsity=S,
-        loss="huber",
-        f_scale=threshold_px,
-        max_nfev=max_nfev,
-        x_scale="jac",
-        method="trf",
-        bounds=(lb, np.inf),
-    )
-    P, rho = unpack(sol.x)
+    r, RX, Xc, z = residuals(R, t, rho)
+    cost = _huber_cost(r, threshold_px)
+    lam = 1e-4
+    for _ in range(max_iterations):
+        w = _huber_weights(r, threshold_px)
+        # d proj / d Xc: [M, 2, 3]
+        Jx = np.zeros((len(fi), 2, 3))
+        Jx[:, 0, 0], Jx[:, 0, 2] = fx / z, -fx * Xc[:, 0] / z**2
+        Jx[:, 1, 1], Jx[:, 1, 2] = fy / z, -fy * Xc[:, 1] / z**2
+        Jp = np.concatenate([-Jx @ _skew(RX), Jx], 2)  # [M, 2, 6]
+        Jr = np.einsum("mkj,mj->mk", Jx, -RX / rho[pj, None])  # [M, 2]
+        wJp = w[:, None, None] * Jp
+        Hpp_m = np.einsum("mki,mkj->mij", wJp, Jp)  # [M, 6, 6]
+        Hpl_m = np.einsum("mki,mk->mi", wJp, Jr)  # [M, 6]
+        gp_m = np.einsum("mki,mk->mi", wJp, r)  # [M, 6]
+        Hll = np.bincount(pj, w * np.sum(Jr * Jr, 1), minlength=N)
+        gl = np.bincount(pj, w * np.sum(Jr * r, 1), minlength=N)
+        Hpp = np.zeros((F - 1, 6, 6))
+        np.add.at(Hpp, fi - 1, Hpp_m)
+        gp = np.zeros((F - 1, 6))
+        np.add.at(gp, fi - 1, gp_m)
+        Hpl = np.zeros((P, N))  # dense: few poses, N tracks
+        np.add.at(Hpl, ((6 * (fi - 1))[:, None] + np.arange(6), pj[:, None]), Hpl_m)
+        Hpp_full = np.zeros((P, P))
+        for k in range(F - 1):
+            Hpp_full[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] = Hpp[k]
+        gp = gp.ravel()
+        improved = False
+        for _try in range(6):
+            Hll_d = Hll * (1.0 + lam) + 1e-12
+            A = Hpp_full + lam * np.diag(np.diag(Hpp_full)) + 1e-9 * np.eye(P)
+            S = A - (Hpl / Hll_d) @ Hpl.T
+            rhs = -gp + (Hpl / Hll_d) @ gl
+            try:
+                dp = np.linalg.solve(S, rhs)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            dl = -(gl + Hpl.T @ dp) / Hll_d
+            d = dp.reshape(F - 1, 6)
+            Rn, tn = R.copy(), t.copy()
+            Rn[1:] = np.stack([cv2.Rodrigues(d[k, :3])[0] for k in range(F - 1)]) @ R[1:]
+            tn[1:] = t[1:] + d[:, 3:]
+            rhon = np.maximum(rho + dl, 1e-6)
+            rn, RXn, Xcn, zn = residuals(Rn, tn, rhon)
+            cn = _huber_cost(rn, threshold_px)
+            if cn < cost:
+                R, t, rho, r, RX, Xc, z = Rn, tn, rhon, rn, RXn, Xcn, zn
+                improved, step_small = True, cost - cn < 1e-6 * cost
+                cost = cn
+                lam = max(lam / 10.0, 1e-7)
+                break
+            lam *= 10.0
+        if not improved or step_small:
+            break
     out = T_i_0.copy()
-    for k, p in enumerate(P, start=1):
-        out[k, :3, :3] = cv2.Rodrigues(p[:3])[0]
-        out[k, :3, 3] = p[3:]
+    out[:, :3, :3], out[:, :3, 3] = R, t
+    out[0] = T_i_0[0]
     return out, rho

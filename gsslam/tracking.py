@@ -48,9 +48,12 @@ class TrackStatus:
     median_flow_px: float = 0.0
 
 
+_GRAY_WEIGHTS = np.array([0.299, 0.587, 0.114], dtype=np.float32)  # as Frame.gray
+
+
 def is_blank(frame: Frame, min_std: float) -> bool:
     """A frame with almost no intensity variation (black, white, lens cap)."""
-    g = frame.gray[::4, ::4]
+    g = frame.image[::4, ::4] @ _GRAY_WEIGHTS  # grey of the sampled pixels only
     return float(np.std(g)) < min_std
 
 
@@ -83,12 +86,13 @@ def photo_consistency(ref: Frame, cur: Frame, m: FrameMatches, threshold: float 
     """Fraction of matches whose grey value in ``cur`` (bilinear at uv_cur) agrees with ``ref``."""
     if len(m.uv_ref) == 0:
         return 0.0
-    g_ref, g_cur = ref.gray, cur.gray
-    a = g_ref[m.uv_ref[:, 1].astype(int), m.uv_ref[:, 0].astype(int)]
+    # grey values at the matches only (no full-image conversion): colour sampled, then weighted
+    a = ref.image[m.uv_ref[:, 1].astype(int), m.uv_ref[:, 0].astype(int)] @ _GRAY_WEIGHTS
     b = cv2.remap(
-        g_cur, m.uv_cur[:, 0].astype(np.float32).reshape(-1, 1), m.uv_cur[:, 1].astype(np.float32).reshape(-1, 1),
+        np.ascontiguousarray(cur.image, dtype=np.float32),
+        m.uv_cur[:, 0].astype(np.float32).reshape(-1, 1), m.uv_cur[:, 1].astype(np.float32).reshape(-1, 1),
         cv2.INTER_LINEAR,
-    ).ravel()
+    ).reshape(-1, 3) @ _GRAY_WEIGHTS
     return float(np.mean(np.abs(a - b) < threshold))
 
 
@@ -168,7 +172,7 @@ class FrameTracker:
         depth = self.ref.depth if self.use_depth else None
         m = sample_matches(self.ref, frame, flow, self.n_points, depth_ref=depth)
         pc = photo_consistency(self.ref, frame, m)
-        med = float(np.median(np.linalg.norm(flow[::8, ::8], axis=-1)))
+        med = float(np.median(np.hypot(flow[::8, ::8, 0], flow[::8, ::8, 1])))
         if pc < self.min_photo_consistency or len(m.uv_ref) < 20:
             return flow, m, TrackStatus(False, "flow", pc, med)
         return flow, m, TrackStatus(True, "", pc, med)

@@ -5,6 +5,12 @@ of the *input* resolution: ``img1[v + flow[v, u, 1], u + flow[v, u, 0]] ~ img0[v
 Internally the images are downscaled so that ``max(H, W) <= cfg.max_side`` and the flow is
 upsampled back (values multiplied by the resize factors).
 
+Flows are memoised by the *identity* of the two input arrays (:class:`PairFlowCache`): the
+tracking flow keyframe -> frame is computed once and reused when the encoder and the flow
+factors ask for the same pair. An entry lives as long as both images do (weak references), so
+the memory follows what the pipeline keeps. Images are treated as immutable: an array changed
+in place after a flow call would get the stale flow.
+
 A learned flow network (RAFT-like) plugs in through :func:`register_flow_method`: give a factory
 ``FlowConfig -> FlowEstimator`` and select it with ``flow.method=<name>`` (see docs/frontend.md).
 """
@@ -12,6 +18,7 @@ A learned flow network (RAFT-like) plugs in through :func:`register_flow_method`
 from __future__ import annotations
 
 import logging
+import weakref
 from collections.abc import Callable
 from typing import Protocol
 
@@ -41,16 +48,55 @@ _DIS_PRESETS = {
 }
 
 
-def _to_gray_u8(img: np.ndarray) -> np.ndarray:  # [H, W, 3] or [H, W] float in [0, 1] -> [H, W] uint8
+def _to_gray(img: np.ndarray) -> np.ndarray:  # [H, W, 3] or [H, W] float in [0, 1] -> [H, W] float32
     a = np.asarray(img)
     if a.ndim == 3:
         if a.shape[2] != 3:
             raise FlowError(f"images must be [H, W, 3] or [H, W], got {a.shape}")
-        a = a @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
-    elif a.ndim != 2:
+        # 0.299 R + 0.587 G + 0.114 B (ITU-R 601), ~10x faster than a matrix product
+        return cv2.cvtColor(np.ascontiguousarray(a, dtype=np.float32), cv2.COLOR_RGB2GRAY)
+    if a.ndim != 2:
         raise FlowError(f"images must be [H, W, 3] or [H, W], got {a.shape}")
-    a = np.nan_to_num(a.astype(np.float32), nan=0.0)
-    return np.clip(a * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return a.astype(np.float32)
+
+
+def _quantize(g: np.ndarray) -> np.ndarray:  # [H, W] float in [0, 1] (NaN allowed) -> [H, W] uint8
+    g = np.nan_to_num(g, nan=0.0)
+    return np.clip(g * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _to_gray_u8(img: np.ndarray) -> np.ndarray:  # [H, W, 3] or [H, W] float in [0, 1] -> [H, W] uint8
+    return _quantize(_to_gray(img))
+
+
+class PairFlowCache:
+    """Flows keyed by the identity of an image pair, dropped when either image is freed."""
+
+    def __init__(self) -> None:
+        self._entries: dict[tuple[int, int], tuple[weakref.ref, weakref.ref, np.ndarray]] = {}
+        self.hits = 0
+        self.misses = 0
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def get(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray | None:
+        e = self._entries.get((id(img0), id(img1)))
+        if e is not None and e[0]() is img0 and e[1]() is img1:
+            self.hits += 1
+            return e[2]
+        self.misses += 1
+        return None
+
+    def put(self, img0: np.ndarray, img1: np.ndarray, flow: np.ndarray) -> None:
+        key = (id(img0), id(img1))
+        drop = self._entries.pop
+        try:  # the callback removes the entry as soon as one image is garbage collected
+            r0 = weakref.ref(img0, lambda _r, k=key: drop(k, None))
+            r1 = weakref.ref(img1, lambda _r, k=key: drop(k, None))
+        except TypeError:  # an object without weak references: never cached
+            return
+        self._entries[key] = (r0, r1, flow)
 
 
 def _check_pair(img0: np.ndarray, img1: np.ndarray) -> None:
@@ -72,10 +118,11 @@ def resize_flow(flow: np.ndarray, width: int, height: int) -> np.ndarray:
 class _ResizingFlow:
     """Runs ``_compute`` (uint8 gray -> flow) at ``max_side`` and returns full-resolution flow."""
 
-    def __init__(self, max_side: int) -> None:
+    def __init__(self, max_side: int, cache: bool = True) -> None:
         if max_side < 16:
             raise FlowError(f"flow.max_side must be >= 16, got {max_side}")
         self.max_side = int(max_side)
+        self.cache = PairFlowCache() if cache else None
 
     def _compute(self, g0: np.ndarray, g1: np.ndarray, init: np.ndarray | None) -> np.ndarray:
         raise NotImplementedError  # [h, w] uint8 x2, init [h, w, 2] or None -> [h, w, 2]
@@ -84,25 +131,38 @@ class _ResizingFlow:
         """Flow img0 -> img1; ``init`` [H, W, 2] (optional) is a starting flow, e.g. a chained one."""
         _check_pair(img0, img1)
         H, W = img0.shape[:2]
-        g0, g1 = _to_gray_u8(img0), _to_gray_u8(img1)
+        use_cache = self.cache is not None and init is None
+        flow = self.cache.get(img0, img1) if use_cache else None
+        if flow is None:
+            flow = self._compute_small(img0, img1, init)
+            if use_cache:
+                self.cache.put(img0, img1, flow)
+        return resize_flow(flow, W, H)
+
+    def _compute_small(self, img0: np.ndarray, img1: np.ndarray, init: np.ndarray | None) -> np.ndarray:
+        """Flow at the internal resolution (max side <= ``max_side``): [h, w, 2] in those pixels."""
+        H, W = img0.shape[:2]
+        g0, g1 = _to_gray(img0), _to_gray(img1)
         f = min(1.0, self.max_side / max(H, W))
-        if f < 1.0:
+        if f < 1.0:  # downscale the float image first: quantising fewer pixels is cheaper
             size = (max(1, int(round(W * f))), max(1, int(round(H * f))))
             g0 = cv2.resize(g0, size, interpolation=cv2.INTER_AREA)
             g1 = cv2.resize(g1, size, interpolation=cv2.INTER_AREA)
+        g0, g1 = _quantize(g0), _quantize(g1)
         if init is not None:
             if init.shape != (H, W, 2):
                 raise FlowError(f"init flow must be [{H}, {W}, 2], got {init.shape}")
             init = resize_flow(np.nan_to_num(init), g0.shape[1], g0.shape[0])
-        flow = self._compute(g0, g1, init)
-        return resize_flow(flow, W, H)
+        return self._compute(g0, g1, init)
 
 
 class DISFlow(_ResizingFlow):
     """OpenCV Dense Inverse Search flow (Kroeger et al., ECCV 2016), preset ultrafast/fast/medium."""
 
-    def __init__(self, preset: str = "medium", max_side: int = 320, finest_scale: int = 0) -> None:
-        super().__init__(max_side)
+    def __init__(
+        self, preset: str = "medium", max_side: int = 320, finest_scale: int = 0, cache: bool = True
+    ) -> None:
+        super().__init__(max_side, cache)
         if preset not in _DIS_PRESETS:
             raise FlowError(f"unknown DIS preset {preset!r}; choose one of {sorted(_DIS_PRESETS)}")
         self.preset = preset

@@ -31,7 +31,7 @@ from gsslam.frontend.encoder import (
     resize_image,
     robust_depth_stats,
 )
-from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, textured_mask
+from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, resize_flow, textured_mask
 from gsslam.frontend.pose_estimation import pnp_from_flow, pose_distance
 from gsslam.geometry import depth_to_points, invert_T
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
@@ -104,9 +104,19 @@ class RGBDEncoder:
         d[bad] = np.nan
         return d
 
-    def _frame_to_frame(self, imgs, depths, i, intr, meta) -> np.ndarray:  # -> T_i_{i-1} [4, 4]
-        fw = self.flow(imgs[i - 1], imgs[i])
-        bw = self.flow(imgs[i], imgs[i - 1])
+    def _pair_flow(self, frames: list[Frame], a: int, b: int, intr: CameraIntrinsics) -> np.ndarray:
+        """Flow frame a -> frame b at point-map resolution [h, w, 2].
+
+        Asked on the full-resolution images (the same arrays the tracker used), so that the flow
+        estimator's cache returns the tracking flow last keyframe -> new keyframe without a new
+        computation; the flow estimator downsizes internally to about point-map resolution anyway.
+        """
+        flow = self.flow(frames[a].image, frames[b].image)
+        return resize_flow(flow, intr.width, intr.height)
+
+    def _frame_to_frame(self, frames, imgs, depths, i, intr, meta) -> np.ndarray:  # -> T_i_{i-1} [4, 4]
+        fw = self._pair_flow(frames, i - 1, i, intr)
+        bw = self._pair_flow(frames, i, i - 1, intr)
         valid = forward_backward_mask(fw, bw, FB_THRESHOLD_PX) & textured_mask(
             imgs[i - 1]
         )  # flow is blind elsewhere
@@ -164,7 +174,7 @@ class RGBDEncoder:
         n = len(frames)
         T_local = np.tile(np.eye(4), (n, 1, 1))
         for i in range(1, n):
-            T_i_prev = self._frame_to_frame(imgs, depths, i, intr, meta)
+            T_i_prev = self._frame_to_frame(frames, imgs, depths, i, intr, meta)
             T_chain = T_local[i - 1] @ invert_T(T_i_prev)  # T_0_i
             T_local[i] = T_chain
             if self.cfg.rgbd_odometry and i > 1:

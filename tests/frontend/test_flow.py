@@ -36,7 +36,8 @@ def teddy(bundled_tum):
 
 
 @pytest.mark.parametrize(
-    "method,preset,bound", [("dis", "medium", 0.3), ("dis", "fast", 0.3), ("farneback", "medium", 0.3)]
+    "method,preset,bound",
+    [("dis", "medium", 0.3), ("dis", "fast", 0.3), ("dis", "ultrafast", 0.3), ("farneback", "medium", 0.3)],
 )
 def test_flow_recovers_subpixel_shift(teddy, method, preset, bound):
     img0 = teddy[0].image

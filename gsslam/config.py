@@ -92,6 +92,8 @@ class MapperConfig:
     unmapped_alpha: float = 0.5  # pixels with rendered alpha below this are "unmapped"
     max_gaussians: int = 50000
     depth_feedback: bool = False  # send rendered depths back to the graph (see docs)
+    depth_feedback_points: int = 500  # rendered depths per new keyframe sent to the graph as depth priors
+    shared_depth_feedback: bool = False  # rendered depth of the shared keyframe seeds the next submap's encoding
     lr_means: float = 1e-3
     lr_colors: float = 2.5e-2
     lr_opacity: float = 5e-2

@@ -101,6 +101,14 @@ class Pipeline:
         self.n_frames = 0
         self.n_flow_factors = 0
         self.last_good: Frame | None = None  # last non-keyframe tracked successfully
+        self.map_stage = None  # gsslam.pipeline_mapping.MapStage when cfg.mapper.enabled
+        if cfg.mapper.enabled:
+            from gsslam.pipeline_mapping import MapStage
+
+            self.map_stage = MapStage(cfg.mapper, intrinsics)
+        from gsslam.pipeline_loops import LoopStage
+
+        self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
 
     # ---- per frame ---------------------------------------------------------------------------
 
@@ -194,6 +202,8 @@ class Pipeline:
         shared_depth = None
         if chain.encodings and frames[0].index in self.keyframes:
             shared_depth = self.keyframes[frames[0].index].depth
+            if self.map_stage is not None and self.cfg.mapper.shared_depth_feedback:
+                shared_depth = self.map_stage.shared_depth(self.chains, frames[0].index, shared_depth)
         try:
             enc = self.encoder.encode(frames, shared_depth=shared_depth)
         except GsslamError as e:
@@ -211,8 +221,9 @@ class Pipeline:
                     continue  # the shared frame keeps the depth of the submap it was made in
                 self.keyframes[idx] = _Keyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
                 added.append(idx)
-            self._add_cross_flow(chain, frames)
+            flows = self._add_cross_flow(chain, frames)
             chain.graph.update()
+            self.loop_stage.after_submap(chain, cid, sid, enc, frames)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
@@ -228,18 +239,36 @@ class Pipeline:
             self._start_chain(frames[-1])
             self.events.append(Event(frames[-1].index, "new_chain", "after a graph failure"))
             return
+        if self.map_stage is not None:
+            self._map_submap(chain, cid, sid, enc, frames, added, flows)
         self.prev_frames = frames
         self.window = [frames[-1]]
 
-    def _add_cross_flow(self, chain: Chain, frames: list[Frame]) -> None:
-        """GaussianFlow: flow matches between new keyframes and their predecessors in the previous submap."""
+    def _map_submap(self, chain, cid, sid, enc, frames, added, flows) -> None:
+        """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""
+        try:
+            self.map_stage.add_submap(self.chains, cid, sid, enc, frames, added, flows)
+            if self.cfg.mapper.depth_feedback and not chain.failed:
+                if self.map_stage.depth_priors(chain.graph, added, self.cfg.mapper.depth_feedback_points):
+                    chain.graph.update()
+                    self.map_stage.follow_graph(self.chains)
+        except GsslamError as e:
+            self.events.append(Event(frames[-1].index, "mapper", str(e).splitlines()[0]))
+            log.warning("mapper failed on submap %d: %s", sid, e)
+
+    def _add_cross_flow(self, chain: Chain, frames: list[Frame]) -> list:
+        """GaussianFlow: flow matches between new keyframes and their predecessors in the previous submap.
+
+        Returns the checked flows ``(a, b, flow [H, W, 2], valid [H, W])`` for the mapper's flow loss.
+        """
+        flows: list = []
         if not self.prev_frames:
-            return
+            return flows
         try:
             from gsslam.frontend.correspondences import correspondences_from_flow
         except ImportError:  # frontend without flow correspondences: submaps chain through shared frames only
             log.warning("gsslam.frontend.correspondences is missing: no cross-submap flow factors")
-            return
+            return flows
         from gsslam.frontend.flow import forward_backward_mask
 
         sequence = self.prev_frames + frames[1:]  # keyframes in order; prev_frames[-1] is shared
@@ -259,6 +288,9 @@ class Pipeline:
                 corr = correspondences_from_flow(src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng)
                 if len(corr) >= 10 and chain.graph.add_flow(corr, self.intrinsics.K, src_submap=kf.submap) is not None:
                     self.n_flow_factors += 1
+                if self.map_stage is not None:
+                    flows.append((src.index, tgt.index, fw, valid))
+        return flows
 
     def _close_chain(self) -> None:
         if len(self.window) > 1:
@@ -275,6 +307,8 @@ class Pipeline:
                         chain.graph.refine_batch()
                     except GsslamError as e:
                         self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
+        if self.map_stage is not None:
+            self.map_stage.follow_graph(self.chains)
 
     # ---- poses -------------------------------------------------------------------------------
 

@@ -45,10 +45,30 @@ class RunResult:
             ("wall time", f"{m.get('wall_time_s', 0.0):.1f} s ({m.get('fps', 0.0):.1f} FPS)"),
             ("peak RSS", f"{m.get('peak_rss_mb', 0.0):.0f} MB"),
         ]
-        for key, label in (("ate", "ATE RMSE (all frames)"), ("ate_keyframes", "ATE RMSE (keyframes)"),
-                           ("ate_before_batch", "ATE RMSE (before batch)")):
+        mp = m.get("mapper") or {}
+        if "psnr_keyframes" in mp:
+            rows.append(
+                (
+                    "map",
+                    f"{mp['num_gaussians']} Gaussians, {mp['size_mb']:.1f} MB, "
+                    f"PSNR {mp['psnr_keyframes']:.1f} dB keyframes / {mp['psnr_other']:.1f} dB held-out "
+                    f"({mp['width']}x{mp['height']})",
+                )
+            )
+        lp = m.get("loop_closure") or {}
+        if lp.get("enabled"):
+            rows.append(
+                ("loops", f"{lp['detected']} detected, {lp['accepted']} accepted, {lp['rejected']} rejected")
+            )
+        for key, label in (
+            ("ate", "ATE RMSE (all frames)"),
+            ("ate_keyframes", "ATE RMSE (keyframes)"),
+            ("ate_before_batch", "ATE RMSE (before batch)"),
+        ):
             if m.get(key):
-                rows.append((label, f"{100 * m[key]['rmse_m']:.2f} cm ({m[key]['align']}, {m[key]['pairs']} poses)"))
+                rows.append(
+                    (label, f"{100 * m[key]['rmse_m']:.2f} cm ({m[key]['align']}, {m[key]['pairs']} poses)")
+                )
         if m.get("interrupted"):
             rows.append(("interrupted", "yes: outputs hold the poses estimated so far"))
         rows.append(("outputs", str(self.out)))
@@ -123,12 +143,23 @@ def _ate(gt: Trajectory | None, est: Trajectory, align: str) -> tuple[dict | Non
     except GsslamError as e:
         log.warning("no ATE: %s", e)
         return None, None
-    return {"rmse_m": res.stats.rmse, "mean_m": res.stats.mean, "median_m": res.stats.median,
-            "max_m": float(np.max(res.errors)), "pairs": len(assoc), "align": align}, (res, assoc)
+    return {
+        "rmse_m": res.stats.rmse,
+        "mean_m": res.stats.mean,
+        "median_m": res.stats.median,
+        "max_m": float(np.max(res.errors)),
+        "pairs": len(assoc),
+        "align": align,
+    }, (res, assoc)
 
 
 def write_outputs(
-    pipe: Pipeline, ds, out: Path, wall: float, done: int, interrupted: bool,
+    pipe: Pipeline,
+    ds,
+    out: Path,
+    wall: float,
+    done: int,
+    interrupted: bool,
     before_batch: dict[int, np.ndarray] | None = None,
 ) -> dict:
     from gsslam.io.trajectory import write_tum
@@ -166,9 +197,15 @@ def write_outputs(
         "ate_before_batch": ate_bb,
         "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
         "interrupted": interrupted,
-        "mapper": "not integrated",
-        "loop_closure": "not integrated",
+        "mapper": None,
+        "loop_closure": pipe.loop_stage.metrics(),
     }
+    if pipe.map_stage is not None:
+        try:
+            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done)
+        except Exception as e:  # the map must never lose a run's trajectory and numbers
+            log.warning("map outputs failed: %s", e)
+            metrics["mapper"] = {"error": str(e)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     if pair is not None:
         try:
@@ -176,9 +213,45 @@ def write_outputs(
 
             res, assoc = pair
             est_xyz = res.alignment.apply_positions(traj.positions[assoc.est_indices])
-            plot_trajectory(out / "trajectory.png", gt.timestamps[assoc.gt_indices],
-                            gt.positions[assoc.gt_indices], est_xyz,
-                            title=f"ATE {100 * ate['rmse_m']:.2f} cm ({align})")
+            plot_trajectory(
+                out / "trajectory.png",
+                gt.timestamps[assoc.gt_indices],
+                gt.positions[assoc.gt_indices],
+                est_xyz,
+                title=f"ATE {100 * ate['rmse_m']:.2f} cm ({align})",
+            )
         except Exception as e:  # a plot must never lose a run's numbers
             log.warning("trajectory plot failed: %s", e)
     return metrics
+
+
+def write_map_outputs(
+    pipe: Pipeline,
+    ds,
+    out: Path,
+    poses: dict[int, np.ndarray],
+    done: int,
+    max_held_out: int = 40,
+    panels: int = 4,
+) -> dict:
+    """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
+
+    PSNR / SSIM at the mapper resolution on every mapper keyframe and on up to ``max_held_out``
+    non-keyframes spread over the run (held out: never seen by the mapper), with their final poses.
+    """
+    from gsslam.mapping.render_run import save_intrinsics
+
+    stage = pipe.map_stage
+    mapper = stage.mapper
+    t0 = time.perf_counter()
+    save_intrinsics(pipe.intrinsics, out / "intrinsics.yaml")
+    ply_bytes = mapper.save_ply(out / "map.ply")
+    mapper.render_keyframe_panels(out / "renders", panels)
+    kfs = [i for i in mapper.keyframe_indices if i in poses]
+    others = [i for i in sorted(poses) if i < done and i not in set(mapper.keyframe_indices)]
+    if len(others) > max_held_out:
+        others = [others[int(k)] for k in np.linspace(0, len(others) - 1, max_held_out)]
+    frames = [ds[i] for i in sorted(set(kfs) | set(others))]
+    ev = mapper.evaluate(frames, poses) if frames else {}
+    ev.pop("per_frame_psnr", None)
+    return {**stage.metrics(), **ev, "ply_mb": ply_bytes / 1e6, "outputs_seconds": time.perf_counter() - t0}

@@ -1,0 +1,153 @@
+"""The Gaussian map inside the pipeline: keyframes in after every submap, graph corrections out.
+
+Per new submap (after the graph update and loop closure):
+
+1. :meth:`MapStage.follow_graph` hands the current submap transforms and keyframe poses to the
+   mapper (``on_poses_updated``): Gaussians of moved submaps move with them.
+2. :meth:`MapStage.add_submap` adds the submap's new keyframes (Sim(3) pose ``T_world_chain S(i)
+   T_local_cam``, the point map in submap units, its confidence) and the cross-submap flows that the
+   pipeline computed for the graph (GaussianFlow supervision), then runs ``optimize`` on the window.
+3. Feedback (SING3R: "optimized depths/poses feed back into the forming of the next submaps"):
+   :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
+   submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);
+   :meth:`MapStage.depth_priors` adds rendered depths of the new keyframes to the graph as depth-prior
+   factors (``mapper.depth_feedback``).
+
+Submap ids are per chain in the graphs; the mapper gets one global id per ``(chain, submap)``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+from gsslam.config import MapperConfig
+from gsslam.geometry import sim3_scale
+from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
+
+log = logging.getLogger(__name__)
+
+
+class MapStage:
+    """Owns a :class:`gsslam.mapping.mapper.GaussianMapper` and keeps it in step with the graphs."""
+
+    def __init__(self, cfg: MapperConfig, intrinsics: CameraIntrinsics) -> None:
+        from gsslam.mapping.mapper import GaussianMapper
+
+        self.cfg = cfg
+        self.intrinsics = intrinsics
+        self.mapper = GaussianMapper(cfg, intrinsics)
+        self._gid: dict[tuple[int, int], int] = {}  # (chain, submap) -> mapper submap id
+        self._anchor: dict[int, tuple[int, int, int]] = {}  # keyframe -> (chain, submap, position)
+        self.n_depth_priors = 0
+        self.seconds = 0.0
+        self.iterations = 0
+        self.last_stats: dict = {}
+
+    def global_id(self, chain: int, submap: int) -> int:
+        return self._gid.setdefault((chain, submap), len(self._gid))
+
+    # ---- poses -------------------------------------------------------------------------------
+
+    @staticmethod
+    def _submap_pose(chain, submap: int) -> np.ndarray:  # [4, 4] Sim(3) T_world_local
+        return chain.T_world_chain @ chain.graph.submap_pose(submap)
+
+    def _keyframe_pose(self, chains, index: int) -> np.ndarray:  # [4, 4] Sim(3) T_world_cam
+        c, s, pos = self._anchor[index]
+        chain = chains[c]
+        return self._submap_pose(chain, s) @ chain.encodings[s].T_local_cam[pos]
+
+    def follow_graph(self, chains) -> int:
+        """Move the map with the graphs' current estimates; returns the number of Gaussians moved."""
+        submaps = {}
+        for (c, s), gid in self._gid.items():
+            if s < len(chains[c].encodings):
+                submaps[gid] = self._submap_pose(chains[c], s)
+        kfs = {
+            i: self._keyframe_pose(chains, i)
+            for i, (c, s, _) in self._anchor.items()
+            if s < len(chains[c].encodings)
+        }
+        return self.mapper.on_poses_updated(submaps, kfs)
+
+    # ---- input -------------------------------------------------------------------------------
+
+    def add_submap(
+        self,
+        chains,
+        cid: int,
+        sid: int,
+        enc: SubmapEncoding,
+        frames: list[Frame],  # the K+1 keyframes of ``enc``, in order
+        new_keyframes: list[int],  # frame indices first encoded in this submap
+        flows: list[tuple[int, int, np.ndarray, np.ndarray]],  # (a, b, flow [H, W, 2], valid [H, W])
+    ) -> dict:
+        """Add the submap's new keyframes and flows, optimise the window; returns the optimiser stats."""
+        gid = self.global_id(cid, sid)
+        self.follow_graph(chains)  # records the new submap's transform before its Gaussians exist
+        by_index = {f.index: f for f in frames}
+        for idx in new_keyframes:
+            pos = list(enc.frame_indices).index(idx)
+            self._anchor[idx] = (cid, sid, pos)
+            self.mapper.add_keyframe(
+                by_index[idx],
+                self._keyframe_pose(chains, idx),
+                gid,
+                points_cam=enc.points_cam[pos],
+                confidence=enc.confidence[pos],
+            )
+        known = set(self.mapper.keyframe_indices)
+        for a, b, flow, valid in flows:
+            if a in known and b in known:
+                self.mapper.add_flow(a, b, flow, valid)
+        stats = self.mapper.optimize()
+        self.seconds += stats.get("seconds", 0.0)
+        self.iterations += stats.get("iterations", 0)
+        self.last_stats = stats
+        log.debug("mapper: %s", {k: v for k, v in stats.items() if not isinstance(v, dict)})
+        return stats
+
+    # ---- feedback ----------------------------------------------------------------------------
+
+    def shared_depth(self, chains, index: int, pointmap_depth: np.ndarray) -> np.ndarray:
+        """Rendered depth of keyframe ``index`` in its owner submap's units at ``pointmap_depth``'s size.
+
+        Pixels the map does not cover keep ``pointmap_depth`` [h, w] (the encoder's own depth).
+        """
+        if index not in self._anchor:
+            return pointmap_depth
+        c, s, _ = self._anchor[index]
+        scale = sim3_scale(self._submap_pose(chains[c], s))
+        rendered = self.mapper.rendered_depth(index) / scale  # [H, W] world -> submap units
+        h, w = pointmap_depth.shape
+        r = cv2.resize(rendered, (w, h), interpolation=cv2.INTER_NEAREST)
+        return np.where(np.isfinite(r) & (r > 0), r, pointmap_depth).astype(np.float32)
+
+    def depth_priors(self, graph, indices: list[int], n_points: int) -> int:
+        """Rendered depths of keyframes ``indices`` as depth-prior factors in ``graph``; returns how many."""
+        added = 0
+        for idx in indices:
+            if idx not in self._anchor:
+                continue
+            uv, depth = self.mapper.depth_feedback(idx, n_points)
+            if len(uv) >= 3 and graph.add_depth_prior(idx, uv, depth, self.intrinsics.K) is not None:
+                added += 1
+        self.n_depth_priors += added
+        return added
+
+    # ---- outputs -----------------------------------------------------------------------------
+
+    def metrics(self) -> dict:
+        return {
+            "keyframes": len(self.mapper.keyframe_indices),
+            "num_gaussians": self.mapper.num_gaussians,
+            "size_mb": self.mapper.size_mb,
+            "optimize_seconds": self.seconds,
+            "iterations": self.iterations,
+            "depth_prior_factors": self.n_depth_priors,
+            "width": self.mapper.intrinsics.width,
+            "height": self.mapper.intrinsics.height,
+        }

@@ -78,7 +78,7 @@ def correspondences_from_flow(
     # CANDIDATES_PER_POINT candidates per requested point: dense flow does not change at the
     # scale of a few pixels, and the stratified sampling costs ~stride^2 less.
     stride = max(1, int(np.sqrt(np.count_nonzero(valid) / max(CANDIDATES_PER_POINT * max_points, 1))))
-    ou, ov = (rng.integers(stride, size=2) if stride > 1 else (0, 0))
+    ou, ov = rng.integers(stride, size=2) if stride > 1 else (0, 0)
     fs = flow[ov::stride, ou::stride]
     ok = valid[ov::stride, ou::stride] & np.isfinite(fs).all(-1)
     grid_v, grid_u = np.mgrid[ov:H:stride, ou:W:stride]

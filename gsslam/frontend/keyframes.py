@@ -25,7 +25,11 @@ class KeyframeError(GsslamError):
 MEDIAN_STRIDE = 4  # the median is taken over every 4th pixel in u and v (1/16 of them)
 
 
-def median_flow_magnitude(flow: np.ndarray, valid: np.ndarray | None = None, stride: int = MEDIAN_STRIDE) -> float:
+def median_flow_magnitude(
+    flow: np.ndarray,  # [H, W, 2]
+    valid: np.ndarray | None = None,  # [H, W] bool
+    stride: int = MEDIAN_STRIDE,
+) -> float:
     """Median ``|flow|`` over finite (and ``valid``) pixels of a ``stride`` grid; NaN when there are none.
 
     Dense flow is smooth at the scale of a few pixels (and computed at half resolution or less),

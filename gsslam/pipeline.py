@@ -30,7 +30,14 @@ import numpy as np
 from gsslam.config import Config
 from gsslam.errors import GsslamError
 from gsslam.geometry import sim3_scale
-from gsslam.tracking import FrameMatches, FrameTracker, is_blank, sample_depth, solve_relative_pose
+from gsslam.tracking import (
+    FrameMatches,
+    FrameTracker,
+    interpolate_poses,
+    is_blank,
+    sample_depth,
+    solve_relative_pose,
+)
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
@@ -344,6 +351,8 @@ class Pipeline:
                                        pc.pnp_threshold_px)
             if T is not None:
                 out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
+        # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
+        out.update(interpolate_poses(out, [m.cur_index for m, _ in self.pending], self.timestamps))
         return dict(sorted(out.items()))
 
     def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:

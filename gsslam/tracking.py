@@ -176,3 +176,35 @@ class FrameTracker:
         if pc < self.min_photo_consistency or len(m.uv_ref) < 20:
             return flow, m, TrackStatus(False, "flow", pc, med)
         return flow, m, TrackStatus(True, "", pc, med)
+
+
+def interpolate_poses(
+    poses: dict[int, np.ndarray],  # frame index -> T_world_cam [4, 4] (known poses)
+    wanted: list[int],  # frames that should get a pose
+    timestamps: dict[int, float],  # frame index -> seconds
+) -> dict[int, np.ndarray]:
+    """Poses of ``wanted`` frames missing from ``poses``, interpolated in time between the nearest
+    posed frames before and after (linear translation, geodesic rotation); frames outside the posed
+    time span get none (no extrapolation). The fallback when PnP of a tracked frame fails."""
+    from gsslam.geometry import so3_exp, so3_log
+
+    known = sorted((timestamps[i], i) for i in poses if i in timestamps)
+    if len(known) < 2:
+        return {}
+    kt = np.array([t for t, _ in known])
+    out = {}
+    for i in wanted:
+        if i in poses or i not in timestamps:
+            continue
+        t = timestamps[i]
+        k = int(np.searchsorted(kt, t))
+        if k == 0 or k == len(kt):
+            continue
+        (ta, a), (tb, b) = known[k - 1], known[k]
+        u = 0.0 if tb == ta else (t - ta) / (tb - ta)
+        Ta, Tb = poses[a], poses[b]
+        T = np.eye(4)
+        T[:3, :3] = Ta[:3, :3] @ so3_exp(u * so3_log(Ta[:3, :3].T @ Tb[:3, :3]))
+        T[:3, 3] = (1.0 - u) * Ta[:3, 3] + u * Tb[:3, 3]
+        out[i] = T
+    return out

@@ -167,10 +167,30 @@ class MonoEncoder:
         T_local = np.stack([invert_T(T) for T in T_i_0])
 
         points, conf = self._dense_depth(imgs, fw, bw, valid, T_local, intr)
-        if sd is not None:  # fill frame 0 from the shared depth where triangulation had nothing
-            fill = ~np.isfinite(points[0, ..., 2]) & np.isfinite(sd)
-            points[0][fill] = depth_to_points(K, sd)[fill]
-            conf[0][fill] = 0.0 if _is_constant(sd) else PROPAGATED_CONFIDENCE
+        if sd is not None and not _is_constant(sd):
+            # the dense frame-0 depth against the shared depth, on every pixel both have: one robust
+            # log-ratio that puts the whole submap (poses and points) in the previous submap's units
+            z0 = points[0, ..., 2]
+            both = np.isfinite(z0) & np.isfinite(sd) & (z0 > 0)
+            if both.sum() >= cfg.min_inliers:
+                g2 = float(np.exp(np.median(np.log(sd[both]) - np.log(z0[both]))))
+                points *= g2
+                T_local[:, :3, 3] *= g2
+                g *= g2
+                meta["scale_source"] = "shared_depth_dense"
+        if sd is not None:
+            # Frame 0 speaks the shared depth, on exactly its pixels: the graph compares the two depth
+            # maps of the shared frame by their medians, and on a scene with near and far parts
+            # (a bimodal depth) medians over different pixel sets differ by factors of 2-4.
+            # (A placeholder plane is no geometry: it only fills the holes of the triangulation.)
+            has = np.isfinite(sd)
+            if _is_constant(sd):
+                fill = has & ~np.isfinite(points[0, ..., 2])
+                points[0][fill] = depth_to_points(K, sd)[fill]
+                conf[0][fill] = 0.0
+            else:
+                conf[0] = np.where(has, np.maximum(conf[0], PROPAGATED_CONFIDENCE), 0.0)
+                points[0] = depth_to_points(K, sd)
         self._fill_missing_depth(points, conf, bw, T_local, K, meta)
         meta.update(
             reference_frame=ref,

@@ -177,7 +177,8 @@ class MonoEncoder:
                 points *= g2
                 T_local[:, :3, 3] *= g2
                 g *= g2
-                meta["scale_source"] = "shared_depth_dense"
+                meta["scale_source"] = "shared_depth"
+                meta["dense_scale_correction"] = g2
         if sd is not None:
             # Frame 0 speaks the shared depth, on exactly its pixels: the graph compares the two depth
             # maps of the shared frame by their medians, and on a scene with near and far parts

@@ -156,6 +156,10 @@ def _huber_cost(r: np.ndarray, k: float) -> float:  # [M, 2]
     return float(np.sum(np.where(n <= k, 0.5 * n**2, k * (n - 0.5 * k))))
 
 
+def _sum_by(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:  # [M], [M, C] -> [n, C]
+    return np.stack([np.bincount(group, values[:, c], minlength=n) for c in range(values.shape[1])], 1)
+
+
 def bundle_adjust(
     K: np.ndarray,
     T_i_0: np.ndarray,  # [F, 4, 4] initial poses (frame 0 -> frame i); T_i_0[0] = I is held fixed
@@ -212,12 +216,11 @@ def bundle_adjust(
         gp_m = np.einsum("mki,mk->mi", wJp, r)  # [M, 6]
         Hll = np.bincount(pj, w * np.sum(Jr * Jr, 1), minlength=N)
         gl = np.bincount(pj, w * np.sum(Jr * r, 1), minlength=N)
-        Hpp = np.zeros((F - 1, 6, 6))
-        np.add.at(Hpp, fi - 1, Hpp_m)
-        gp = np.zeros((F - 1, 6))
-        np.add.at(gp, fi - 1, gp_m)
-        Hpl = np.zeros((P, N))  # dense: few poses, N tracks
-        np.add.at(Hpl, ((6 * (fi - 1))[:, None] + np.arange(6), pj[:, None]), Hpl_m)
+        Hpp = _sum_by(fi - 1, Hpp_m.reshape(-1, 36), F - 1).reshape(F - 1, 6, 6)
+        gp = _sum_by(fi - 1, gp_m, F - 1)
+        # dense [P, N]: few poses, N tracks; row 6 (i - 1) + c, column j
+        flat = ((6 * (fi - 1))[:, None] + np.arange(6)) * N + pj[:, None]
+        Hpl = np.bincount(flat.ravel(), Hpl_m.ravel(), minlength=P * N).reshape(P, N)
         Hpp_full = np.zeros((P, P))
         for k in range(F - 1):
             Hpp_full[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] = Hpp[k]
@@ -243,7 +246,7 @@ def bundle_adjust(
             cn = _huber_cost(rn, threshold_px)
             if cn < cost:
                 R, t, rho, r, RX, Xc, z = Rn, tn, rhon, rn, RXn, Xcn, zn
-                improved, step_small = True, cost - cn < 1e-6 * cost
+                improved, step_small = True, cost - cn < 1e-5 * cost
                 cost = cn
                 lam = max(lam / 10.0, 1e-7)
                 break

@@ -15,6 +15,7 @@ from gsslam.tracking import interpolate_poses
 pytest.importorskip("gsslam.graph.submap_graph")
 
 FAST = ["mapper.enabled=false", "loop.enabled=false"]
+KITTI_BOUND = 0.005  # of the path length
 
 
 def _run(path, name, tmp_path, max_frames=None, **kw) -> dict:
@@ -56,3 +57,14 @@ def test_interpolate_poses_between_neighbours():
     assert set(out) == {1}  # known poses are kept, nothing is extrapolated past the last one
     assert np.allclose(out[1][:3, 3], [0.25, 0.5, 0.0])
     assert np.allclose(out[1][:3, :3], so3_exp(np.array([0.0, 0.0, 0.1])))
+
+
+def test_mono_kitti_forward_motion(shared_data, tmp_path):
+    """KITTI 06, first 21 frames (~24 m of forward driving at ~10 Hz, every frame a keyframe)."""
+    from gsslam.datasets.base import open_dataset
+
+    m = _run(shared_data / "kitti_odometry", "kitti", tmp_path, max_frames=21, sequence="06")
+    assert m["frames_posed"] == m["frames"] == 21 and m["chains"] == 1
+    gt = open_dataset("kitti", shared_data / "kitti_odometry", sequence="06").ground_truth()
+    path = float(np.sum(np.linalg.norm(np.diff(gt.poses[:21, :3, 3], axis=0), axis=1)))
+    assert m["ate"]["rmse_m"] < KITTI_BOUND * path, (m["ate"], path)  # measured 3.3 cm on 23.9 m (0.14 %)

@@ -47,6 +47,16 @@ def test_mono_euroc_static_start(shared_data, tmp_path):
     assert m["ate"]["rmse_m"] < 0.01, m["ate"]  # the drone stands still: measured 0.06 cm
 
 
+def test_mono_bundled_euroc_without_ground_truth(repo_root, tmp_path):
+    """Bundled EuRoC prefix (20 frames, camera at rest, no GT): one chain, every frame posed, ~no motion."""
+    from gsslam.io.trajectory import read_tum
+
+    m = _run(repo_root / "data" / "euroc_V1_01_easy_20", "euroc", tmp_path)
+    assert m["frames_posed"] == m["frames"] == 20 and m["chains"] == 1 and m["ate"] is None
+    traj = read_tum(tmp_path / "trajectory.tum")
+    assert len(traj) == 20 and np.abs(traj.poses[:, :3, 3]).max() < 0.05  # unit = scene depth
+
+
 def test_interpolate_poses_between_neighbours():
     from gsslam.geometry import make_T, so3_exp
 

@@ -50,7 +50,7 @@ class EncoderConfig:
     min_inliers: int = 30  # PnP / essential-matrix inliers below this: the estimate is not trusted
     rgbd_odometry: bool = False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
-    mono_dis_preset: str = "medium"  # DIS preset of the mono encoder's own flows ("" = the pipeline's flow)
+    mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
 
 @dataclass(frozen=True)

@@ -54,8 +54,8 @@ class MonoEncoder:
         self.cfg = cfg
         self.flow = flow
         if cfg.mono_dis_preset and isinstance(flow, DISFlow) and flow.preset != cfg.mono_dis_preset:
-            # Structure from motion needs finer flow than tracking: the chained tracks and the dense
-            # triangulation use their own DIS (TUM teddy 200 mono: 2.0 cm ATE with ultrafast, 0.8 medium).
+            # the chained tracks and the dense triangulation may use a finer DIS than tracking does
+            # (measured: better on TUM teddy and KITTI 01, worse on KITTI 06; docs/results.md)
             self.flow = DISFlow(cfg.mono_dis_preset, flow.max_side, flow.finest_scale)
         self.rng = np.random.default_rng(seed)
 

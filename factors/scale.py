@@ -23,12 +23,25 @@ from factors._lie import check_positive, fill
 
 
 def median_depth_ratio(depth_prev: np.ndarray, depth_next: np.ndarray) -> float:
-    """``D(i-1, K) / D(i, 0)`` from two depth maps of the same frame (NaN / <= 0 ignored)."""
+    """``s = exp(log D(i-1, K) - log D(i, 0))`` from two depth maps of the same (shared) frame.
+
+    ``depth_prev``, ``depth_next``: [h, w] depths of the shared frame in the previous and the new
+    submap (NaN / <= 0 ignored). When both maps have the same size, ``s`` is the median over the
+    pixels valid in BOTH of the per-pixel log ratio: medians over different pixel sets are biased
+    in scenes with several depth layers (a near object and a far wall covered unequally by the two
+    maps gave scale errors of 1.1-4x on TUM teddy). Otherwise (different sizes, or fewer than 3
+    common pixels) it falls back to the ratio of the two medians.
+    """
     from factors.errors import FactorInputError
 
-    a = np.asarray(depth_prev, dtype=np.float64).ravel()
-    b = np.asarray(depth_next, dtype=np.float64).ravel()
-    a, b = a[np.isfinite(a) & (a > 0)], b[np.isfinite(b) & (b > 0)]
+    a = np.asarray(depth_prev, dtype=np.float64)
+    b = np.asarray(depth_next, dtype=np.float64)
+    ok_a, ok_b = np.isfinite(a) & (a > 0), np.isfinite(b) & (b > 0)
+    if a.shape == b.shape:
+        both = ok_a & ok_b
+        if both.sum() >= 3:
+            return float(np.exp(np.median(np.log(a[both]) - np.log(b[both]))))
+    a, b = a[ok_a], b[ok_b]
     if len(a) < 3 or len(b) < 3:
         raise FactorInputError(
             f"scale drift needs valid depths of the shared frame in both submaps, got {len(a)} and {len(b)}"

@@ -81,10 +81,10 @@ class MapperConfig:
     enabled: bool = True
     device: str = "auto"  # "auto" | "cpu" | "cuda"
     max_side: int = 160  # mapper resolution: images downscaled so max(H, W) <= this
-    iterations: int = 30  # optimisation steps per map update
+    iterations: int = 60  # optimisation steps per map update
     window: int = 8  # keyframes in the sliding window
     lambda_ssim: float = 0.2
-    lambda_depth: float = 5.0  # inverse-depth L1 (lambda_D)
+    lambda_depth: float = 0.5  # inverse-depth L1 (lambda_D)
     lambda_depth_normal: float = 0.05  # lambda_DN
     lambda_scale: float = 10.0  # lambda_S
     lambda_flow: float = 1.0
@@ -112,6 +112,13 @@ class MapperConfig:
     densify_error: float = 0.5  # mean normalized error that triggers clone/split (see docs/mapping.md)
     prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
+    revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
+    final_iterations: int = 300  # finalize(): global pass over all keyframes at the end of a run
+    pose_window: int = 2  # newest keyframes of the window whose poses are refined jointly with the map
+    lambda_pose_prior: float = 1.0  # anchors pose deltas to the given (graph) poses
+    pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
+    pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
+    pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ def run(
     kf_every: int = 10,
     iterations: int = 30,
     sides: tuple[int, ...] = (120, 160),
+    overrides: dict | None = None,
 ) -> dict:
     from gsslam.datasets.base import open_dataset
     from gsslam.mapping.mapper import GaussianMapper
@@ -49,7 +50,7 @@ def run(
     }
     for side in sides:
         torch.manual_seed(0)
-        cfg = dataclasses.replace(MapperConfig(), max_side=side, iterations=iterations)
+        cfg = dataclasses.replace(MapperConfig(), max_side=side, iterations=iterations, **(overrides or {}))
         mapper = GaussianMapper(cfg, ds.intrinsics)
         times, iters_ms = [], []
         t0 = time.perf_counter()

@@ -55,6 +55,12 @@ class _Keyframe:
     t: np.ndarray  # [3]
     scale: float  # Sim(3) scale of the given pose (submap units -> world)
     delta: torch.Tensor  # [6] se(3) right-perturbation (rho, phi), optimized
+    anchor: torch.Tensor  # [6] where the pose prior pulls delta: 0, or the accepted pose-only refinement
+
+    @property
+    def median_depth(self) -> float:  # world units; sets the translation scale of the pose prior
+        d = self.depth[torch.isfinite(self.depth)]
+        return float(d.median()) if d.numel() else 1.0
 
 
 def _resolve_device(name: str) -> torch.device:
@@ -93,6 +99,8 @@ class GaussianMapper:
     """A window-optimized 3D Gaussian map over keyframes; see the module docstring."""
 
     def __init__(self, cfg: MapperConfig, intrinsics: CameraIntrinsics) -> None:
+        if not 0.0 <= cfg.revisit_fraction <= 1.0:
+            raise MapperError(f"mapper.revisit_fraction must lie in [0, 1], got {cfg.revisit_fraction}")
         self.cfg = cfg
         self.device = _resolve_device(cfg.device)
         self.full_intrinsics = intrinsics
@@ -220,6 +228,7 @@ class GaussianMapper:
             t=t,
             scale=s,
             delta=torch.zeros(6, device=self.device),
+            anchor=torch.zeros(6, device=self.device),
         )
         if frame.index not in self._kfs:
             self._order.append(frame.index)
@@ -232,27 +241,48 @@ class GaussianMapper:
         """Intra-submap pose refinement of one keyframe against the frozen map; returns the last loss.
 
         Loss: photometric L1 under the rendered alpha mask + ``lambda_pose_depth`` * scale-invariant
-        depth, minimized w.r.t. the keyframe's se(3) delta only.
+        depth + the prior that anchors the delta to the given pose, w.r.t. the keyframe's se(3) delta
+        only. The best delta is kept only when it lowers the data loss by ``pose_min_gain`` (relative);
+        otherwise the given pose stands (an imperfect map must not pull a good pose away).
         """
         kf = self._kf(frame_index)
-        kf.delta = kf.delta.detach().clone().requires_grad_(True)
+        start = kf.delta.detach().clone()
+        kf.delta = start.clone().requires_grad_(True)
         opt = torch.optim.Adam([kf.delta], lr=self.cfg.lr_pose_init)
         m = self.model.detached()
-        value = float("nan")
+        first = best = value = float("nan")
+        best_delta = start
         for _ in range(max(0, iterations)):
             out = self._render(self._T_cam_world(kf), m)
-            loss = self._pose_loss(out, kf)
+            data = self._pose_loss(out, kf, prior=False)
+            value = float(data.detach())
+            if first != first:  # nan: the first evaluation is at the given pose
+                first = best = value
+            elif value < best:
+                best, best_delta = value, kf.delta.detach().clone()
+            loss = data + self.cfg.pose_init_prior * self._pose_prior(kf)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            value = float(loss.detach())
-        kf.delta = kf.delta.detach()
-        return value
+        accept = best < (1.0 - self.cfg.pose_min_gain) * first
+        kf.delta = best_delta if accept else start
+        kf.anchor = kf.delta.clone()
+        _log.debug("pose refinement of %d: %.4f -> %.4f (%s)", frame_index, first, best, "kept" if accept else "rejected")
+        return best if accept else first
 
-    def _pose_loss(self, out: RenderOutput, kf: _Keyframe) -> torch.Tensor:
+    def _pose_loss(self, out: RenderOutput, kf: _Keyframe, prior: bool = True) -> torch.Tensor:
         mask = out.alpha.detach() > 0.9
-        return L.l1(out.color, kf.image, mask) + self.cfg.lambda_pose_depth * L.scale_invariant_depth(
+        loss = L.l1(out.color, kf.image, mask) + self.cfg.lambda_pose_depth * L.scale_invariant_depth(
             out.depth, kf.depth, mask
+        )
+        return loss + self._pose_prior(kf) if prior else loss
+
+    def _pose_prior(self, kf: _Keyframe) -> torch.Tensor:
+        """``lambda_pose_prior * (|rho / (r z_med)|^2 + |phi / r|^2)``, r = ``pose_prior_rel``: anchors the delta."""
+        r = self.cfg.pose_prior_rel
+        return self.cfg.lambda_pose_prior * (
+            ((kf.delta[:3] - kf.anchor[:3]) / (r * kf.median_depth)).square().sum()
+            + ((kf.delta[3:] - kf.anchor[3:]) / r).square().sum()
         )
 
     @torch.no_grad()
@@ -348,6 +378,7 @@ class GaussianMapper:
                 kf.depth = kf.depth * (s / kf.scale)
             kf.R, kf.t, kf.scale = R, t, s
             kf.delta = torch.zeros(6, device=self.device)
+            kf.anchor = torch.zeros(6, device=self.device)
         return moved
 
     # ------------------------------------------------------------------ optimization
@@ -355,43 +386,30 @@ class GaussianMapper:
         return self._order[-self.cfg.window :]
 
     def optimize(self, iterations: int | None = None) -> dict:
-        """Adam over the window's keyframes, then densify/prune; returns stats."""
+        """Adam over the window's keyframes (plus revisits of older ones), then densify/prune; returns stats.
+
+        Steps alternate between the newest keyframe and a random one of the window; a share
+        ``revisit_fraction`` of the steps goes to a random keyframe older than the window instead, so
+        regions seen earlier do not degrade. Only the newest ``pose_window`` keyframes (never the very
+        first, the gauge) get joint pose refinement.
+        """
         cfg = self.cfg
         iters = cfg.iterations if iterations is None else int(iterations)
         win = self._window()
         if not win or len(self.model) == 0 or iters <= 0:
             return {"iterations": 0, "num_gaussians": len(self.model)}
+        old = self._order[: -len(win)]
+        pose_kfs = [i for i in win[-max(0, cfg.pose_window) :] if i != self._order[0]] if cfg.pose_refinement else []
+        if cfg.pose_window <= 0:
+            pose_kfs = []
+
+        def pick(it: int) -> int:
+            if old and self._rng.random() < cfg.revisit_fraction:
+                return old[int(self._rng.integers(len(old)))]
+            return win[-1] if it % 2 == 0 else win[int(self._rng.integers(len(win)))]
+
         t0 = time.perf_counter()
-        params = {k: v.detach().clone().requires_grad_(True) for k, v in self.model.params().items()}
-        for k, v in params.items():
-            setattr(self.model, k, v)
-        lrs = {
-            "means": cfg.lr_means,
-            "quats": cfg.lr_quats,
-            "log_scales": cfg.lr_scales,
-            "opacity_logits": cfg.lr_opacity,
-            "sh_dc": cfg.lr_colors,
-        }
-        groups = [{"params": [params[k]], "lr": lrs[k]} for k in params]
-        # the oldest keyframe ever added fixes the gauge; the others may move a little
-        pose_kfs = [i for i in win if cfg.pose_refinement and i != self._order[0]]
-        for i in pose_kfs:
-            self._kfs[i].delta = self._kfs[i].delta.detach().clone().requires_grad_(True)
-        if pose_kfs:
-            groups.append({"params": [self._kfs[i].delta for i in pose_kfs], "lr": cfg.lr_pose})
-        opt = torch.optim.Adam(groups, eps=1e-15)
-        first = last = None
-        for it in range(iters):
-            idx = win[-1] if it % 2 == 0 else win[int(self._rng.integers(len(win)))]
-            loss, psnr_val = self._step_loss(self._kfs[idx], pose=idx in pose_kfs, win=win)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            first = psnr_val if first is None else first
-            last = psnr_val
-        for i in pose_kfs:
-            self._kfs[i].delta = self._kfs[i].delta.detach()
-        self.model = self.model.detached()
+        first, last = self._adam(iters, pick, pose_kfs, win)
         active = torch.isin(self.model.keyframe_id, torch.tensor(win, device=self.device))
         self.model, self.state, dstats = self.strategy.step(self.model, self.state, active=active)
         dt = time.perf_counter() - t0
@@ -404,6 +422,82 @@ class GaussianMapper:
             "num_gaussians": len(self.model),
             **dstats,
         }
+
+    def finalize(self, iterations: int | None = None) -> dict:
+        """Global refinement at the end of a run: Adam over *all* keyframes (random order, poses fixed).
+
+        ``iterations`` defaults to ``final_iterations``. Learning rates decay to 10 % over the pass;
+        afterwards only transparent Gaussians are pruned (no densification). Returns stats.
+        """
+        iters = self.cfg.final_iterations if iterations is None else int(iterations)
+        if not self._order or len(self.model) == 0 or iters <= 0:
+            return {"iterations": 0, "num_gaussians": len(self.model)}
+        order = list(self._order)
+        # every keyframe once per epoch, shuffled, so none is left out of a short pass
+        queue: list[int] = []
+
+        def pick(it: int) -> int:
+            if not queue:
+                queue.extend(order[int(j)] for j in self._rng.permutation(len(order)))
+            return queue.pop()
+
+        t0 = time.perf_counter()
+        first, last = self._adam(iters, pick, [], order, decay=0.1)
+        keep = self.model.opacities >= self.cfg.min_opacity
+        pruned = int((~keep).sum())
+        self.model = self.model.select(keep)
+        self.state = {k: v[keep] for k, v in self.state.items()}
+        dt = time.perf_counter() - t0
+        return {
+            "iterations": iters,
+            "seconds": dt,
+            "ms_per_iteration": 1000 * dt / iters,
+            "psnr_first": first,
+            "psnr_last": last,
+            "pruned": pruned,
+            "num_gaussians": len(self.model),
+        }
+
+    def _adam(self, iters: int, pick, pose_kfs: list[int], win: list[int], decay: float = 1.0):
+        """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
+
+        ``decay``: learning rates fall exponentially to ``decay`` x their start over the steps.
+        """
+        cfg = self.cfg
+        params = {k: v.detach().clone().requires_grad_(True) for k, v in self.model.params().items()}
+        for k, v in params.items():
+            setattr(self.model, k, v)
+        lrs = {
+            "means": cfg.lr_means,
+            "quats": cfg.lr_quats,
+            "log_scales": cfg.lr_scales,
+            "opacity_logits": cfg.lr_opacity,
+            "sh_dc": cfg.lr_colors,
+        }
+        groups = [{"params": [params[k]], "lr": lrs[k]} for k in params]
+        for i in pose_kfs:
+            self._kfs[i].delta = self._kfs[i].delta.detach().clone().requires_grad_(True)
+        if pose_kfs:
+            groups.append({"params": [self._kfs[i].delta for i in pose_kfs], "lr": cfg.lr_pose})
+        opt = torch.optim.Adam(groups, eps=1e-15)
+        base = [g["lr"] for g in opt.param_groups]
+        gamma = decay ** (1.0 / max(1, iters - 1))
+        first = last = None
+        for it in range(iters):
+            idx = pick(it)
+            loss, psnr_val = self._step_loss(self._kfs[idx], pose=idx in pose_kfs, win=win)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            if decay != 1.0:
+                for g, lr0 in zip(opt.param_groups, base):
+                    g["lr"] = lr0 * gamma ** (it + 1)
+            first = psnr_val if first is None else first
+            last = psnr_val
+        for i in pose_kfs:
+            self._kfs[i].delta = self._kfs[i].delta.detach()
+        self.model = self.model.detached()
+        return first, last
 
     def _step_loss(self, kf: _Keyframe, pose: bool, win: list[int]) -> tuple[torch.Tensor, float]:
         cfg, m = self.cfg, self.model

@@ -40,3 +40,9 @@ def load_tum_frames(root: Path, indices: list[int]) -> list[Frame]:
 def teddy_frames(bundled_tum) -> list[Frame]:
     """Frames 5, 10, 15, 20 (after the first GT pose), 640x480 with depth and GT pose."""
     return load_tum_frames(bundled_tum, [5, 10, 15, 20])
+
+
+@pytest.fixture(scope="session")
+def teddy_sequence(bundled_tum) -> list[Frame]:
+    """Six frames 10 apart (5, 15, ..., 55: about 25 cm of camera motion) with depth and GT pose."""
+    return load_tum_frames(bundled_tum, [5, 15, 25, 35, 45, 55])

@@ -315,7 +315,10 @@ class Pipeline:
                     except GsslamError as e:
                         self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
         if self.map_stage is not None:
-            self.map_stage.follow_graph(self.chains)
+            try:
+                self.map_stage.finalize(self.chains)
+            except GsslamError as e:
+                self.events.append(Event(-1, "mapper", f"final map refinement failed: {e}"))
 
     # ---- poses -------------------------------------------------------------------------------
 

@@ -44,6 +44,7 @@ class MapStage:
         self.n_depth_priors = 0
         self.seconds = 0.0
         self.iterations = 0
+        self.final_iterations = 0
         self.last_stats: dict = {}
 
     def global_id(self, chain: int, submap: int) -> int:
@@ -110,6 +111,14 @@ class MapStage:
         log.debug("mapper: %s", {k: v for k, v in stats.items() if not isinstance(v, dict)})
         return stats
 
+    def finalize(self, chains) -> dict:
+        """End of the run: follow the final graph estimates, then the global pass over all keyframes."""
+        self.follow_graph(chains)
+        stats = self.mapper.finalize()
+        self.seconds += stats.get("seconds", 0.0)
+        self.final_iterations = stats.get("iterations", 0)
+        return stats
+
     # ---- feedback ----------------------------------------------------------------------------
 
     def shared_depth(self, chains, index: int, pointmap_depth: np.ndarray) -> np.ndarray:
@@ -147,6 +156,7 @@ class MapStage:
             "size_mb": self.mapper.size_mb,
             "optimize_seconds": self.seconds,
             "iterations": self.iterations,
+            "final_iterations": self.final_iterations,
             "depth_prior_factors": self.n_depth_priors,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,

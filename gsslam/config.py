@@ -76,6 +76,7 @@ class GraphConfig:
     wildfire_threshold: float = 0.001  # iSAM2 Gauss-Newton wildfire threshold
     batch_max_iterations: int = 100  # Levenberg-Marquardt iterations of refine_batch
 
+
 @dataclass(frozen=True)
 class MapperConfig:
     enabled: bool = True
@@ -84,7 +85,7 @@ class MapperConfig:
     iterations: int = 60  # optimisation steps per map update
     window: int = 8  # keyframes in the sliding window
     lambda_ssim: float = 0.2
-    lambda_depth: float = 0.5  # inverse-depth L1 (lambda_D)
+    lambda_depth: float = 5.0  # inverse-depth L1 (lambda_D, SING3R)
     lambda_depth_normal: float = 0.05  # lambda_DN
     lambda_scale: float = 10.0  # lambda_S
     lambda_flow: float = 1.0

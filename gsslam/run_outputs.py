@@ -22,10 +22,13 @@ from typing import Any
 import numpy as np
 
 from gsslam.config import Config, save_config
+from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.pipeline import Pipeline
 from gsslam.types import Trajectory
 
 log = logging.getLogger(__name__)
+
+DATASETS_WITH_OPTIONAL_DEPTH = ("tum", "7scenes")  # loaders that take ``with_depth``
 
 ProgressCallback = Callable[[int, int, float], None]  # (frames done, total, frames per second)
 
@@ -91,6 +94,9 @@ def run_sequence(
     """
     from gsslam.datasets.base import open_dataset
 
+    if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
+        # a monocular run reads no depth, so frames that only lack a depth image are kept
+        dataset_kwargs.setdefault("with_depth", False)
     ds = open_dataset(dataset_name, path, **dataset_kwargs)
     callback = progress if callable(progress) else None
     return run_dataset(ds, cfg, Path(out), max_frames=max_frames, progress=callback)
@@ -110,11 +116,12 @@ def run_dataset(
     done, interrupted = 0, True
     before_batch: dict[int, np.ndarray] = {}
     try:
-        for i in range(n):
-            pipe.process(ds[i])
-            done += 1
-            if progress is not None:
-                progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
+        with FramePrefetcher(ds, range(n)) as frames:  # decoding overlaps tracking; same order as ds[i]
+            for frame in frames:
+                pipe.process(frame)
+                done += 1
+                if progress is not None:
+                    progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
         pipe._close_chain()
         before_batch = pipe.frame_poses()
         pipe.finish()

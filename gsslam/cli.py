@@ -81,7 +81,7 @@ def eval_cmd(
 def run_cmd(
     path: Annotated[Path, typer.Argument(help="Sequence folder (or video file for --dataset images).")],
     dataset: Annotated[str, typer.Option(help="tum | euroc | kitti | 7scenes | images | synthetic")] = "tum",
-    mode: Annotated[str, typer.Option(help="mono | rgbd")] = "mono",
+    mode: Annotated[Optional[str], typer.Option(help="mono | rgbd (default: the config's, mono)")] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/latest"),
     config: Annotated[Optional[Path], typer.Option(help="YAML config file.")] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")] = None,

@@ -71,3 +71,10 @@ def test_config_is_frozen():
 
 def test_parse_override_nesting():
     assert parse_override("a.b.c=1") == {"a": {"b": {"c": 1}}}
+
+
+def test_unset_cli_mode_keeps_the_files_mode(tmp_path: Path):
+    p = tmp_path / "c.yaml"
+    p.write_text("mode: rgbd\n")
+    assert load_config(p, [], mode=None).mode == "rgbd"  # `gsslam run` without --mode
+    assert load_config(p, [], mode="mono").mode == "mono"  # an explicit --mode wins

@@ -90,7 +90,7 @@ class MapperConfig:
     lambda_scale: float = 10.0  # lambda_S
     lambda_flow: float = 1.0
     lambda_pose_depth: float = 10.0  # intra-submap pose refinement, scale-invariant depth term
-    pose_refinement: bool = True
+    pose_refinement: bool = False  # keyframe pose refinement against the map; off: the graph discards it (docs)
     unmapped_alpha: float = 0.5  # pixels with rendered alpha below this are "unmapped"
     max_gaussians: int = 50000
     depth_feedback: bool = False  # send rendered depths back to the graph (see docs)
@@ -114,12 +114,16 @@ class MapperConfig:
     prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
-    final_iterations: int = 300  # finalize(): global pass over all keyframes at the end of a run
+    final_iterations: int = 1000  # finalize(): global pass over all keyframes at the end of a run
+    final_densify_rounds: int = 0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
     pose_window: int = 2  # newest keyframes of the window whose poses are refined jointly with the map
     lambda_pose_prior: float = 1.0  # anchors pose deltas to the given (graph) poses
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
     pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
+    num_threads: int = 1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
+    depth_confidence_weight: bool = False  # inverse-depth residuals x point-map confidence
+    depth_scale_free: bool = False  # inverse-depth term x the keyframe's median depth (unit-free)
 
 
 @dataclass(frozen=True)

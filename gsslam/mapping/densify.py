@@ -92,10 +92,12 @@ class DensifyStrategy:
         model: GaussianModel,
         state: dict[str, torch.Tensor],
         active: torch.Tensor | None = None,  # [N] bool: Gaussians of the current window
+        densify_only: bool = False,
     ) -> tuple[GaussianModel, dict[str, torch.Tensor], dict[str, int]]:
         """Densify, prune and cap; returns the new (detached) model, its state and counts.
 
         Only ``active`` Gaussians (default: all) age, densify or get pruned; the cap applies to all.
+        ``densify_only``: skip the pruning step (the mapper's final pass prunes by opacity itself).
         """
         self.check_state(model, state)
         if active is None:
@@ -129,6 +131,8 @@ class DensifyStrategy:
         prune |= enough & (err > self.prune_error)
         prune |= (state["age"] >= self.min_age) & (state["seen"] < self.min_support)
         prune &= active
+        if densify_only:
+            prune &= False
         n_pruned = int(prune.sum())
         model, state = _keep(model, state, ~prune)
 

@@ -91,14 +91,24 @@ def inverse_depth_l1(
     target: torch.Tensor,  # [H, W] measured / predicted depth, NaN or <= 0 = unknown
     mask: torch.Tensor | None = None,  # [H, W]
     min_depth: float = 1e-3,
+    weight: torch.Tensor | None = None,  # [H, W] per-pixel confidence in [0, 1]
+    unit: float = 1.0,
 ) -> torch.Tensor:
-    """``mean |1/d - 1/d*|`` over pixels where both depths are positive (and ``mask``)."""
+    """``mean unit * |1/d - 1/d*|`` (x ``weight``) over pixels where both depths are positive (and ``mask``).
+
+    ``unit``: a depth (e.g. the target's median) that makes the term scale-free, so a monocular map's
+    arbitrary units do not change its weight. ``weight`` multiplies each pixel's residual; the mean
+    stays over the valid pixels, so low-confidence depth pulls less instead of being re-normalized.
+    """
     ok = torch.isfinite(target) & (target > min_depth) & (depth > min_depth)
     if mask is not None:
         ok = ok & (mask > 0)
     t = torch.where(ok, target, torch.ones_like(target))
     d = torch.where(ok, depth, torch.ones_like(depth))
-    return _masked_mean((1.0 / d - 1.0 / t).abs(), ok)
+    r = unit * (1.0 / d - 1.0 / t).abs()
+    if weight is not None:
+        r = r * weight
+    return _masked_mean(r, ok)
 
 
 def normals_from_depth(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,6 +58,7 @@ class _Keyframe:
     scale: float  # Sim(3) scale of the given pose (submap units -> world)
     delta: torch.Tensor  # [6] se(3) right-perturbation (rho, phi), optimized
     anchor: torch.Tensor  # [6] where the pose prior pulls delta: 0, or the accepted pose-only refinement
+    depth_weight: torch.Tensor | None = None  # [h, w] confidence of ``depth`` in [0, 1] (None: all 1)
 
     @property
     def median_depth(self) -> float:  # world units; sets the translation scale of the pose prior
@@ -93,6 +96,23 @@ def _fill_depth(depth: torch.Tensor) -> torch.Tensor:  # [h, w] NaN holes -> [h,
         np.nan_to_num(d, nan=0.0).astype(np.float32), hole.astype(np.uint8), 3, cv2.INPAINT_NS
     )
     return torch.as_tensor(np.where(hole, filled, d), device=depth.device)
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run the block with ``n`` torch CPU threads (``n <= 0``: unchanged), then restore the setting.
+
+    The CPU rasterizer's threads spin when the cores are shared (tracking, other processes): one
+    thread was up to 15x faster than two on a busy 2-core machine (docs/mapping.md, "Threads").
+    """
+    before = torch.get_num_threads()
+    if n > 0 and n != before:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
 
 
 class GaussianMapper:
@@ -204,6 +224,7 @@ class GaussianMapper:
             raise MapperError(f"frame {frame.index}: T_world_cam must be a finite 4x4, got {T.shape}")
         R, t, s = split_sim3(T)
         w, h = self.intrinsics.width, self.intrinsics.height
+        weight = None
         image = _resize(frame.image.astype(np.float32), w, h)
         if points_cam is not None:
             if points_cam.ndim != 3 or points_cam.shape[2] != 3:
@@ -214,6 +235,8 @@ class GaussianMapper:
             if confidence is not None:
                 conf = _resize(confidence.astype(np.float32), w, h, nearest=True)
                 depth = np.where(conf >= self.cfg.min_confidence, depth, np.nan)
+                if self.cfg.depth_confidence_weight:
+                    weight = torch.as_tensor(np.clip(conf, 0.0, 1.0), device=self.device)
         elif frame.depth is not None:
             depth = _resize(frame.depth.astype(np.float32), w, h, nearest=True) * s
         else:
@@ -229,13 +252,15 @@ class GaussianMapper:
             scale=s,
             delta=torch.zeros(6, device=self.device),
             anchor=torch.zeros(6, device=self.device),
+            depth_weight=weight,
         )
         if frame.index not in self._kfs:
             self._order.append(frame.index)
         self._kfs[frame.index] = kf
-        if self.cfg.pose_refinement and len(self.model) and frame.index != self._order[0]:
-            self.refine_pose(frame.index, self.cfg.pose_iterations)
-        return self._seed(kf)
+        with torch_threads(self.cfg.num_threads):
+            if self.cfg.pose_refinement and len(self.model) and frame.index != self._order[0]:
+                self.refine_pose(frame.index, self.cfg.pose_iterations)
+            return self._seed(kf)
 
     def refine_pose(self, frame_index: int, iterations: int) -> float:
         """Intra-submap pose refinement of one keyframe against the frozen map; returns the last loss.
@@ -267,7 +292,13 @@ class GaussianMapper:
         accept = best < (1.0 - self.cfg.pose_min_gain) * first
         kf.delta = best_delta if accept else start
         kf.anchor = kf.delta.clone()
-        _log.debug("pose refinement of %d: %.4f -> %.4f (%s)", frame_index, first, best, "kept" if accept else "rejected")
+        _log.debug(
+            "pose refinement of %d: %.4f -> %.4f (%s)",
+            frame_index,
+            first,
+            best,
+            "kept" if accept else "rejected",
+        )
         return best if accept else first
 
     def _pose_loss(self, out: RenderOutput, kf: _Keyframe, prior: bool = True) -> torch.Tensor:
@@ -399,7 +430,9 @@ class GaussianMapper:
         if not win or len(self.model) == 0 or iters <= 0:
             return {"iterations": 0, "num_gaussians": len(self.model)}
         old = self._order[: -len(win)]
-        pose_kfs = [i for i in win[-max(0, cfg.pose_window) :] if i != self._order[0]] if cfg.pose_refinement else []
+        pose_kfs = (
+            [i for i in win[-max(0, cfg.pose_window) :] if i != self._order[0]] if cfg.pose_refinement else []
+        )
         if cfg.pose_window <= 0:
             pose_kfs = []
 
@@ -409,9 +442,10 @@ class GaussianMapper:
             return win[-1] if it % 2 == 0 else win[int(self._rng.integers(len(win)))]
 
         t0 = time.perf_counter()
-        first, last = self._adam(iters, pick, pose_kfs, win)
-        active = torch.isin(self.model.keyframe_id, torch.tensor(win, device=self.device))
-        self.model, self.state, dstats = self.strategy.step(self.model, self.state, active=active)
+        with torch_threads(cfg.num_threads):
+            first, last = self._adam(iters, pick, pose_kfs, win)
+            active = torch.isin(self.model.keyframe_id, torch.tensor(win, device=self.device))
+            self.model, self.state, dstats = self.strategy.step(self.model, self.state, active=active)
         dt = time.perf_counter() - t0
         return {
             "iterations": iters,
@@ -442,7 +476,26 @@ class GaussianMapper:
             return queue.pop()
 
         t0 = time.perf_counter()
-        first, last = self._adam(iters, pick, [], order, decay=0.1)
+        rounds = max(0, self.cfg.final_densify_rounds)
+        bounds = np.linspace(0, iters, rounds + 2).round().astype(int)
+        densified = 0
+        first = last = None
+        with torch_threads(self.cfg.num_threads):
+            # errors from the run so far describe a map that no longer exists: start counting afresh
+            for k in ("err_sum", "err_count", "max_radius"):
+                self.state[k] = torch.zeros_like(self.state[k])
+            for r in range(rounds + 1):
+                n = int(bounds[r + 1] - bounds[r])
+                if n <= 0:
+                    continue
+                lr0 = 0.1 ** (bounds[r] / max(1, iters - 1))
+                f, last = self._adam(n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0)
+                first = f if first is None else first
+                if r < rounds:  # densify where the whole map still errs; no error-based pruning
+                    self.model, self.state, st = self.strategy.step(self.model, self.state, densify_only=True)
+                    densified += st["cloned"] + st["split"]
+                    for k in ("err_sum", "err_count", "max_radius"):
+                        self.state[k] = torch.zeros_like(self.state[k])
         keep = self.model.opacities >= self.cfg.min_opacity
         pruned = int((~keep).sum())
         self.model = self.model.select(keep)
@@ -455,13 +508,17 @@ class GaussianMapper:
             "psnr_first": first,
             "psnr_last": last,
             "pruned": pruned,
+            "densified": densified,
             "num_gaussians": len(self.model),
         }
 
-    def _adam(self, iters: int, pick, pose_kfs: list[int], win: list[int], decay: float = 1.0):
+    def _adam(
+        self, iters: int, pick, pose_kfs: list[int], win: list[int], decay: float = 1.0, lr_scale: float = 1.0
+    ):
         """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
 
-        ``decay``: learning rates fall exponentially to ``decay`` x their start over the steps.
+        Learning rates start at ``lr_scale`` x the configured ones and fall exponentially to ``decay`` x
+        their start over the steps.
         """
         cfg = self.cfg
         params = {k: v.detach().clone().requires_grad_(True) for k, v in self.model.params().items()}
@@ -474,7 +531,7 @@ class GaussianMapper:
             "opacity_logits": cfg.lr_opacity,
             "sh_dc": cfg.lr_colors,
         }
-        groups = [{"params": [params[k]], "lr": lrs[k]} for k in params]
+        groups = [{"params": [params[k]], "lr": lr_scale * lrs[k]} for k in params]
         for i in pose_kfs:
             self._kfs[i].delta = self._kfs[i].delta.detach().clone().requires_grad_(True)
         if pose_kfs:
@@ -504,7 +561,10 @@ class GaussianMapper:
         T_cw = self._T_cam_world(kf, with_delta=True)
         out = self._render(T_cw)
         loss = L.color_loss(out.color, kf.image, cfg.lambda_ssim)
-        loss = loss + cfg.lambda_depth * L.inverse_depth_l1(out.depth, kf.depth)
+        unit = kf.median_depth if cfg.depth_scale_free else 1.0
+        loss = loss + cfg.lambda_depth * L.inverse_depth_l1(
+            out.depth, kf.depth, weight=kf.depth_weight, unit=unit
+        )
         if cfg.lambda_depth_normal > 0:
             loss = loss + cfg.lambda_depth_normal * L.depth_normal_consistency(
                 out.depth, out.normal, self.K, mask=out.alpha.detach() > 0.5
@@ -590,7 +650,8 @@ class GaussianMapper:
         """PSNR / SSIM at the mapper resolution of keyframes and held-out frames with a pose."""
         from gsslam.mapping.outputs import evaluate_map
 
-        return evaluate_map(self, frames, poses)
+        with torch_threads(self.cfg.num_threads):
+            return evaluate_map(self, frames, poses)
 
     def save_ply(self, path: str | Path) -> int:
         """Write the map as a 3DGS PLY; returns the file size in bytes."""

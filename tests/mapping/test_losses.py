@@ -96,3 +96,14 @@ def test_flow_loss_zero_for_consistent_motion_and_normalized_error():
     e_small = L.normalized_flow_error(torch.tensor([[1.0, 0.0]]), torch.tensor([[10.0, 0.0]]), eps_px=0.0)
     e_big = L.normalized_flow_error(torch.tensor([[4.0, 0.0]]), torch.tensor([[40.0, 0.0]]), eps_px=0.0)
     assert e_small.item() == pytest.approx(e_big.item())
+
+
+def test_inverse_depth_l1_unit_makes_it_scale_free_and_weight_scales_pixels():
+    d = torch.tensor([[1.0, 2.0], [4.0, 1.0]])
+    t = torch.tensor([[2.0, 2.0], [2.0, float("nan")]])
+    base = L.inverse_depth_l1(d, t, unit=2.0)
+    # the same scene in units 10x larger, with the unit (e.g. the median depth) scaled along: same value
+    assert L.inverse_depth_l1(10 * d, 10 * t, unit=20.0).item() == pytest.approx(base.item())
+    w = torch.tensor([[0.5, 1.0], [0.0, 1.0]])
+    # residuals 0.5, 0, 0.25 (x unit 2) weighted 0.5, 1, 0, averaged over the 3 valid pixels
+    assert L.inverse_depth_l1(d, t, weight=w, unit=2.0).item() == pytest.approx(2 * 0.25 / 3)

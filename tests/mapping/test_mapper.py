@@ -170,3 +170,14 @@ def test_bad_input_raises(teddy_frames):
         m.add_keyframe(nodepth, f.T_world_cam_gt, 0)
     with pytest.raises(MapperError):
         GaussianMapper(dataclasses.replace(CFG, device="tpu"), f.intrinsics)
+
+
+def test_torch_threads_sets_and_restores():
+    from gsslam.mapping.mapper import torch_threads
+
+    n = torch.get_num_threads()
+    with torch_threads(1):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == n
+    with torch_threads(0):
+        assert torch.get_num_threads() == n

@@ -84,7 +84,9 @@ def test_pose_refinement_recovers_an_injected_error(teddy_frames):
     # without the prior in the pose-only step (the default anchors it: no drift on a good pose, see
     # test_mapper_quality.py), a real 9 px error is corrected
     # lambda_depth 0.5: a map fit closer to the images (measured: 10.8 -> 4.3 px; 5.5 px at the default 5)
-    m = GaussianMapper(dataclasses.replace(CFG, max_side=120, pose_init_prior=0.0, lambda_depth=0.5), f0.intrinsics)
+    m = GaussianMapper(
+        dataclasses.replace(CFG, max_side=120, pose_init_prior=0.0, lambda_depth=0.5), f0.intrinsics
+    )
     m.add_keyframe(f0, f0.T_world_cam_gt, 0)
     m.add_keyframe(f2, f2.T_world_cam_gt, 0)
     m.optimize(30)

@@ -13,7 +13,13 @@ from gsslam.geometry import invert_T
 from gsslam.mapping.mapper import GaussianMapper, MapperError
 
 CFG = MapperConfig(
-    max_side=80, iterations=20, window=3, device="cpu", revisit_fraction=0.0, pose_iterations=10, pose_refinement=True
+    max_side=80,
+    iterations=20,
+    window=3,
+    device="cpu",
+    revisit_fraction=0.0,
+    pose_iterations=10,
+    pose_refinement=True,
 )
 
 

@@ -65,7 +65,9 @@ def render() -> str:
             lines += [doc, ""]
         lines += ["| key | default | meaning |", "|---|---|---|"]
         for g in dataclasses.fields(section):
-            lines.append(f"| `{f.name}.{g.name}` | `{getattr(section, g.name)!r}` | {notes.get(g.name, '')} |")
+            lines.append(
+                f"| `{f.name}.{g.name}` | `{getattr(section, g.name)!r}` | {notes.get(g.name, '')} |"
+            )
     return "\n".join(lines) + "\n"
 
 

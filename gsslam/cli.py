@@ -59,7 +59,9 @@ def eval_cmd(
     max_dt: Annotated[float, typer.Option(help="Max timestamp difference for association (s).")] = 0.02,
     rpe_delta: Annotated[int, typer.Option(help="RPE frame delta.")] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
-    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG: aligned estimate over ground truth.")] = None,
+    plot: Annotated[
+        Optional[Path], typer.Option(help="Write a PNG: aligned estimate over ground truth.")
+    ] = None,
 ) -> None:
     """ATE (after Umeyama alignment) and RPE of EST against GT.
 
@@ -84,7 +86,9 @@ def run_cmd(
     mode: Annotated[Optional[str], typer.Option(help="mono | rgbd (default: the config's, mono)")] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/latest"),
     config: Annotated[Optional[Path], typer.Option(help="YAML config file.")] = None,
-    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
+    ] = None,
     max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
     intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
@@ -115,7 +119,9 @@ def run_cmd(
             bar.update(done - bar.n)
 
     try:
-        result = run_sequence(path, dataset, cfg, out, max_frames=max_frames, progress=callback or False, **ds_kwargs)
+        result = run_sequence(
+            path, dataset, cfg, out, max_frames=max_frames, progress=callback or False, **ds_kwargs
+        )
     finally:
         if bar is not None:
             bar.close()
@@ -179,7 +185,9 @@ def bench_mapper(
     max_frames: Annotated[int, typer.Option()] = 60,
     kf_every: Annotated[int, typer.Option(help="Keyframe every N frames (ground-truth poses).")] = 10,
     iterations: Annotated[int, typer.Option(help="Optimisation steps per keyframe.")] = 30,
-    sides: Annotated[str, typer.Option(help="Comma-separated mapper resolutions (max side, px).")] = "120,160",
+    sides: Annotated[
+        str, typer.Option(help="Comma-separated mapper resolutions (max side, px).")
+    ] = "120,160",
 ) -> None:
     """Mapper alone on ground-truth poses: PSNR, map size, time per keyframe for each resolution."""
     _bench(

@@ -26,8 +26,12 @@ class ConfigError(GsslamError):
 @dataclass(frozen=True)
 class FlowConfig:
     method: str = "dis"  # "dis" | "farneback"
-    dis_preset: str = "ultrafast"  # "ultrafast" | "fast" | "medium" (ultrafast: ~3x faster, see docs/results.md)
-    dis_finest_scale: int = 0  # DIS pyramid level of the output (0: the downscaled image itself; -1: preset's)
+    dis_preset: str = (
+        "ultrafast"  # "ultrafast" | "fast" | "medium" (ultrafast: ~3x faster, see docs/results.md)
+    )
+    dis_finest_scale: int = (
+        0  # DIS pyramid level of the output (0: the downscaled image itself; -1: preset's)
+    )
     max_side: int = 320  # flow is computed on images downscaled so that max(H, W) <= this
     fb_threshold_px: float = 2.0  # forward-backward consistency threshold, in full-resolution pixels
 
@@ -48,7 +52,9 @@ class EncoderConfig:
     max_depth: float = 10.0
     pointmap_max_side: int = 320  # point maps / local estimation at max(H, W) <= this (TUM -> 320x240)
     min_inliers: int = 30  # PnP / essential-matrix inliers below this: the estimate is not trusted
-    rgbd_odometry: bool = False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
+    rgbd_odometry: bool = (
+        False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
+    )
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
@@ -59,7 +65,9 @@ class GraphConfig:
     flow_inlier_prior: float = 0.9  # inlier probability of the robust flow likelihood
     flow_outlier_range_px: float = 50.0  # width of the uniform outlier density
     scale_sigma: float = 0.05  # std of the log-scale drift factor
-    adjacency_sigma_m: float = 0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
+    adjacency_sigma_m: float = (
+        0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
+    )
     loop_sigma_m: float = 0.05
     depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
     prior_rot_sigma: float = 1e-4
@@ -90,12 +98,16 @@ class MapperConfig:
     lambda_scale: float = 10.0  # lambda_S
     lambda_flow: float = 1.0
     lambda_pose_depth: float = 10.0  # intra-submap pose refinement, scale-invariant depth term
-    pose_refinement: bool = False  # keyframe pose refinement against the map; off: the graph discards it (docs)
+    pose_refinement: bool = (
+        False  # keyframe pose refinement against the map; off: the graph discards it (docs)
+    )
     unmapped_alpha: float = 0.5  # pixels with rendered alpha below this are "unmapped"
     max_gaussians: int = 50000
     depth_feedback: bool = False  # send rendered depths back to the graph (see docs)
     depth_feedback_points: int = 500  # rendered depths per new keyframe sent to the graph as depth priors
-    shared_depth_feedback: bool = False  # rendered depth of the shared keyframe seeds the next submap's encoding
+    shared_depth_feedback: bool = (
+        False  # rendered depth of the shared keyframe seeds the next submap's encoding
+    )
     lr_means: float = 1e-3
     lr_colors: float = 2.5e-2
     lr_opacity: float = 5e-2
@@ -115,13 +127,17 @@ class MapperConfig:
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
     final_iterations: int = 1000  # finalize(): global pass over all keyframes at the end of a run
-    final_densify_rounds: int = 0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
+    final_densify_rounds: int = (
+        0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
+    )
     pose_window: int = 2  # newest keyframes of the window whose poses are refined jointly with the map
     lambda_pose_prior: float = 1.0  # anchors pose deltas to the given (graph) poses
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
     pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
-    num_threads: int = 1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
+    num_threads: int = (
+        1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
+    )
     depth_confidence_weight: bool = False  # inverse-depth residuals x point-map confidence
     depth_scale_free: bool = False  # inverse-depth term x the keyframe's median depth (unit-free)
 

@@ -120,7 +120,10 @@ class Pipeline:
     # ---- per frame ---------------------------------------------------------------------------
 
     def process(self, frame: Frame, retry: bool = False) -> None:
-        if (frame.intrinsics.width, frame.intrinsics.height) != (self.intrinsics.width, self.intrinsics.height):
+        if (frame.intrinsics.width, frame.intrinsics.height) != (
+            self.intrinsics.width,
+            self.intrinsics.height,
+        ):
             raise PipelineError(f"frame {frame.index} has another image size than the sequence")
         self.n_frames += 0 if retry else 1
         if self.monocular and frame.depth is not None:
@@ -132,10 +135,17 @@ class Pipeline:
         flow, matches, status = self.tracker.track(frame)
         T_ref_cur = None
         if status.ok and not self.monocular:
-            depth = sample_depth(frame_depth(self.tracker.ref), self.intrinsics, self.intrinsics, matches.uv_ref)
+            depth = sample_depth(
+                frame_depth(self.tracker.ref), self.intrinsics, self.intrinsics, matches.uv_ref
+            )
             pc = self.cfg.pipeline
             T_ref_cur, _ = solve_relative_pose(
-                matches, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+                matches,
+                depth,
+                self.intrinsics.K,
+                pc.min_pnp_inliers,
+                pc.min_pnp_inlier_ratio,
+                pc.pnp_threshold_px,
             )
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
@@ -290,10 +300,16 @@ class Pipeline:
                 kf = self.keyframes[src.index]
                 if not (self.chains[kf.chain].encodings[kf.submap].confidence[kf.position] > 0).any():
                     continue  # a zero-parallax placeholder depth (mono) is no geometry to project
-                depth = cv2.resize(kf.depth, (self.intrinsics.width, self.intrinsics.height),
-                                   interpolation=cv2.INTER_NEAREST)
-                corr = correspondences_from_flow(src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng)
-                if len(corr) >= 10 and chain.graph.add_flow(corr, self.intrinsics.K, src_submap=kf.submap) is not None:
+                depth = cv2.resize(
+                    kf.depth, (self.intrinsics.width, self.intrinsics.height), interpolation=cv2.INTER_NEAREST
+                )
+                corr = correspondences_from_flow(
+                    src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng
+                )
+                if (
+                    len(corr) >= 10
+                    and chain.graph.add_flow(corr, self.intrinsics.K, src_submap=kf.submap) is not None
+                ):
                     self.n_flow_factors += 1
                 if self.map_stage is not None:
                     flows.append((src.index, tgt.index, fw, valid))
@@ -350,8 +366,9 @@ class Pipeline:
             kf = self.keyframes[m.ref_index]
             intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
             depth = sample_depth(kf.depth, intr, self.intrinsics, m.uv_ref)
-            T, _ = solve_relative_pose(m, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio,
-                                       pc.pnp_threshold_px)
+            T, _ = solve_relative_pose(
+                m, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+            )
             if T is not None:
                 out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
         # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time

@@ -88,11 +88,15 @@ def photo_consistency(ref: Frame, cur: Frame, m: FrameMatches, threshold: float 
         return 0.0
     # grey values at the matches only (no full-image conversion): colour sampled, then weighted
     a = ref.image[m.uv_ref[:, 1].astype(int), m.uv_ref[:, 0].astype(int)] @ _GRAY_WEIGHTS
-    b = cv2.remap(
-        np.ascontiguousarray(cur.image, dtype=np.float32),
-        m.uv_cur[:, 0].astype(np.float32).reshape(-1, 1), m.uv_cur[:, 1].astype(np.float32).reshape(-1, 1),
-        cv2.INTER_LINEAR,
-    ).reshape(-1, 3) @ _GRAY_WEIGHTS
+    b = (
+        cv2.remap(
+            np.ascontiguousarray(cur.image, dtype=np.float32),
+            m.uv_cur[:, 0].astype(np.float32).reshape(-1, 1),
+            m.uv_cur[:, 1].astype(np.float32).reshape(-1, 1),
+            cv2.INTER_LINEAR,
+        ).reshape(-1, 3)
+        @ _GRAY_WEIGHTS
+    )
     return float(np.mean(np.abs(a - b) < threshold))
 
 
@@ -126,7 +130,13 @@ def solve_relative_pose(
     uv_ref, uv_cur, z = m.uv_ref[ok], m.uv_cur[ok], depth_ref[ok]
     X = np.stack([(uv_ref[:, 0] - K[0, 2]) / K[0, 0] * z, (uv_ref[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
     found, rvec, tvec, inl = cv2.solvePnPRansac(
-        X, uv_cur, K, None, iterationsCount=100, reprojectionError=threshold_px, confidence=0.999,
+        X,
+        uv_cur,
+        K,
+        None,
+        iterationsCount=100,
+        reprojectionError=threshold_px,
+        confidence=0.999,
         flags=cv2.SOLVEPNP_EPNP,
     )
     n_in = 0 if inl is None else len(inl)
@@ -165,7 +175,9 @@ class FrameTracker:
         if self.ref is None:
             raise TrackingError("no reference keyframe: call set_reference first")
         if frame.image.shape != self.ref.image.shape:
-            raise TrackingError(f"frame {frame.index} is {frame.image.shape}, keyframe is {self.ref.image.shape}")
+            raise TrackingError(
+                f"frame {frame.index} is {frame.image.shape}, keyframe is {self.ref.image.shape}"
+            )
         if is_blank(frame, self.blank_std):
             return None, None, TrackStatus(False, "blank")
         flow = self.flow(self.ref.image, frame.image)

@@ -65,8 +65,9 @@ def test_kitti_format(files):
     moved = gt.poses.copy()
     moved[:, :3, 3] += 0.1
     write_kitti(Trajectory(gt.timestamps, moved), d / "est.txt")
-    res = CliRunner().invoke(app, ["eval", str(d / "gt.txt"), str(d / "est.txt"), "--format", "kitti",
-                                   "--align", "none", "--json"])
+    res = CliRunner().invoke(
+        app, ["eval", str(d / "gt.txt"), str(d / "est.txt"), "--format", "kitti", "--align", "none", "--json"]
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["association"]["pairs"] == len(gt)

@@ -18,7 +18,9 @@ def _load_doc_maker():
 
 def test_config_doc_is_up_to_date():
     current = (REPO / "docs" / "config.md").read_text()
-    assert current == _load_doc_maker().render(), "docs/config.md is stale: run python docs/make_config_doc.py"
+    assert current == _load_doc_maker().render(), (
+        "docs/config.md is stale: run python docs/make_config_doc.py"
+    )
 
 
 def test_readme_test_command_is_what_ci_runs():
@@ -30,6 +32,8 @@ def test_readme_test_command_is_what_ci_runs():
 
 
 def test_cli_help_lists_every_command():
-    out = subprocess.run([sys.executable, "-m", "gsslam", "--help"], capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "gsslam", "--help"], capture_output=True, text=True, check=True
+    )
     for cmd in ("run", "eval", "render", "bench"):
         assert cmd in out.stdout

@@ -27,7 +27,9 @@ def test_rgbd_on_bundled_tum(bundled_tum, tmp_path):
 
     cfg = load_config(None, FAST, mode="rgbd")
     seen = []
-    result = run_sequence(bundled_tum, "tum", cfg, tmp_path, max_frames=40, progress=lambda d, n, fps: seen.append(d))
+    result = run_sequence(
+        bundled_tum, "tum", cfg, tmp_path, max_frames=40, progress=lambda d, n, fps: seen.append(d)
+    )
     assert seen == list(range(1, 41))
     m = _metrics(tmp_path)
     for name in ("trajectory.tum", "keyframes.tum", "config.yaml", "metrics.json", "trajectory.png"):
@@ -57,7 +59,9 @@ def test_synthetic_scene_exact_truth(mode, tmp_path):
 class _Spliced:
     """A synthetic sequence with frames replaced: black frames, a repeated frame, a jump."""
 
-    def __init__(self, base: SyntheticDataset, other: SyntheticDataset, black: set, repeat: set, jump_from: int):
+    def __init__(
+        self, base: SyntheticDataset, other: SyntheticDataset, black: set, repeat: set, jump_from: int
+    ):
         self.base, self.other = base, other
         self.black, self.repeat, self.jump_from = black, repeat, jump_from
         self.name, self.intrinsics, self.has_depth = "spliced", base.intrinsics, True

@@ -49,7 +49,9 @@ def test_submap_encoding_and_correspondence_shapes():
     K = CameraIntrinsics(10, 10, 2, 2, width=4, height=3)
     SubmapEncoding([0, 1], np.tile(np.eye(4), (2, 1, 1)), np.zeros((2, 3, 4, 3)), np.zeros((2, 3, 4)), K)
     with pytest.raises(TypesError, match="T_local_cam"):
-        SubmapEncoding([0, 1, 2], np.tile(np.eye(4), (2, 1, 1)), np.zeros((3, 3, 4, 3)), np.zeros((3, 3, 4)), K)
+        SubmapEncoding(
+            [0, 1, 2], np.tile(np.eye(4), (2, 1, 1)), np.zeros((3, 3, 4, 3)), np.zeros((3, 3, 4)), K
+        )
     c = Correspondences(0, 1, np.zeros((5, 2)), np.zeros((5, 2)), np.ones(5), np.ones(5))
     assert len(c) == 5
     with pytest.raises(TypesError, match="depth_src"):

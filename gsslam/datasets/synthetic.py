@@ -105,8 +105,14 @@ class SyntheticDataset:
         fps: float = 30.0,
     ) -> None:
         params: dict[str, Any] = dict(
-            n_frames=n_frames, width=width, height=height, trajectory=trajectory, seed=seed,
-            motion_scale=motion_scale, arc_deg=arc_deg, fps=fps,
+            n_frames=n_frames,
+            width=width,
+            height=height,
+            trajectory=trajectory,
+            seed=seed,
+            motion_scale=motion_scale,
+            arc_deg=arc_deg,
+            fps=fps,
         )
         if path is not None:
             params.update(self._read_params(Path(path)))
@@ -142,7 +148,9 @@ class SyntheticDataset:
     def _read_params(path: Path) -> dict:
         p = path / "synthetic.yaml" if path.is_dir() else path
         if not p.is_file():
-            raise SyntheticDatasetError(f"no synthetic scene description at {p} (a YAML of {', '.join(_PARAMS)})")
+            raise SyntheticDatasetError(
+                f"no synthetic scene description at {p} (a YAML of {', '.join(_PARAMS)})"
+            )
         try:
             data = yaml.safe_load(p.read_text()) or {}
         except yaml.YAMLError as e:

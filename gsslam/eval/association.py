@@ -61,9 +61,7 @@ def _nearest(short: np.ndarray, long: np.ndarray, max_dt: float) -> tuple[np.nda
     return idx, np.where(pick_ub, np.abs(diff_ub), diff_lb)
 
 
-def associate(
-    gt: Trajectory, est: Trajectory, max_dt: float = 0.02, one_to_one: bool = True
-) -> Association:
+def associate(gt: Trajectory, est: Trajectory, max_dt: float = 0.02, one_to_one: bool = True) -> Association:
     """Pair ``gt`` and ``est`` poses whose timestamps differ by at most ``max_dt`` seconds."""
     if not max_dt >= 0:
         raise AssociationError(f"max_dt must be >= 0 seconds, got {max_dt}")

@@ -46,8 +46,11 @@ class EvalReport:
     def table_rows(self) -> list[tuple[str, str]]:
         a, t, r = self.ate.stats, self.rpe.translation, self.rpe.rotation_deg
         rows = [
-            ("pairs", f"{len(self.association)} (gt {self.n_gt}, est {self.n_est}, max |dt| "
-                      f"{self.association.dt.max():.4f} s <= {self.max_dt} s)"),
+            (
+                "pairs",
+                f"{len(self.association)} (gt {self.n_gt}, est {self.n_est}, max |dt| "
+                f"{self.association.dt.max():.4f} s <= {self.max_dt} s)",
+            ),
             ("alignment", f"{self.ate.alignment.method}, scale {self.ate.alignment.scale:.6f}"),
         ]
         stats = ("rmse", "mean", "median", "std", "min", "max")
@@ -111,4 +114,3 @@ def evaluate_files(
             title=f"{Path(est).name} vs {Path(gt).name}: ATE rmse {report.ate.stats.rmse:.4f} m ({align})",
         )
     return report
-

@@ -30,7 +30,8 @@ from dataclasses import dataclass
 import torch
 
 from gsslam.errors import GsslamError
-from gsslam.mapping.gaussians import GaussianModel, quat_to_matrix
+from gsslam.mapping.gaussians import GaussianModel
+from gsslam.mapping.projection import quat_to_rotmat
 
 STATE_KEYS = ("err_sum", "err_count", "seen", "age", "max_radius")
 
@@ -168,7 +169,7 @@ class DensifyStrategy:
         if len(idx) == 0:
             return model, state
         parent = model.select(idx)
-        R = quat_to_matrix(parent.quats)  # [M, 3, 3]
+        R = quat_to_rotmat(parent.quats)  # [M, 3, 3]
         children = []
         for _ in range(2):
             c = parent.select(torch.arange(len(parent), device=model.device))

@@ -46,26 +46,6 @@ def quat_multiply(q1: torch.Tensor, q2: torch.Tensor) -> torch.Tensor:
     )
 
 
-def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """(w, x, y, z) quaternions [N, 4] (normalized here) -> rotation matrices [N, 3, 3]."""
-    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(q.shape[:-1] + (3, 3))
-
-
 def rgb_to_sh_dc(rgb: torch.Tensor) -> torch.Tensor:  # [N, 3] -> [N, 3]
     return (rgb - 0.5) / SH_C0
 

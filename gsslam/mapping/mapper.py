@@ -309,7 +309,10 @@ class GaussianMapper:
         return loss + self._pose_prior(kf) if prior else loss
 
     def _pose_prior(self, kf: _Keyframe) -> torch.Tensor:
-        """Anchors the delta: ``lambda_pose_prior * (|rho / (r z_med)|^2 + |phi / r|^2)``, r = ``pose_prior_rel``."""
+        """Anchors the delta: ``lambda_pose_prior * (|rho / (r z_med)|^2 + |phi / r|^2)``.
+
+        ``r`` is ``pose_prior_rel``; ``z_med`` the keyframe's median depth.
+        """
         r = self.cfg.pose_prior_rel
         return self.cfg.lambda_pose_prior * (
             ((kf.delta[:3] - kf.anchor[:3]) / (r * kf.median_depth)).square().sum()

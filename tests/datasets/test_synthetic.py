@@ -80,7 +80,9 @@ def test_loop_returns_to_start_and_motion_scale():
 def test_open_from_yaml(tmp_path):
     from gsslam.datasets.base import open_dataset
 
-    (tmp_path / "synthetic.yaml").write_text("n_frames: 5\nwidth: 80\nheight: 60\ntrajectory: line\nseed: 4\n")
+    (tmp_path / "synthetic.yaml").write_text(
+        "n_frames: 5\nwidth: 80\nheight: 60\ntrajectory: line\nseed: 4\n"
+    )
     try:
         ds = open_dataset("synthetic", tmp_path)
     except ImportError:  # another loader of the registry has not landed yet

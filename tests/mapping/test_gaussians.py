@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from gsslam.geometry import make_T, so3_exp
-from gsslam.mapping.gaussians import GaussianError, GaussianModel, quat_to_matrix
+from gsslam.mapping.gaussians import GaussianError, GaussianModel
+from gsslam.mapping.projection import quat_to_rotmat as quat_to_matrix
 
 
 def _model(n: int, seed: int = 0) -> GaussianModel:

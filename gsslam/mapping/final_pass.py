@@ -1,0 +1,91 @@
+"""The end-of-run global pass over all keyframes (poses fixed), with a few densification rounds."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from gsslam.mapping.keyframes import torch_threads
+from gsslam.mapping.window import adam_steps
+
+if TYPE_CHECKING:
+    from gsslam.mapping.mapper import GaussianMapper
+
+_ERROR_STATE = ("err_sum", "err_count", "max_radius")
+
+
+def epoch_picker(mapper: GaussianMapper, order: list[int]):
+    """A ``pick(it)`` that visits every keyframe of ``order`` once per shuffled epoch."""
+    queue: list[int] = []
+
+    def pick(it: int) -> int:
+        if not queue:
+            queue.extend(order[int(j)] for j in mapper._rng.permutation(len(order)))
+        return queue.pop()
+
+    return pick
+
+
+def reset_error_state(mapper: GaussianMapper) -> None:
+    """Errors from the run so far describe a map that no longer exists: start counting afresh."""
+    for k in _ERROR_STATE:
+        mapper.state[k] = torch.zeros_like(mapper.state[k])
+
+
+def prune_transparent(mapper: GaussianMapper) -> int:
+    """Drop Gaussians with opacity below ``min_opacity``; returns how many."""
+    keep = mapper.model.opacities >= mapper.cfg.min_opacity
+    mapper.model = mapper.model.select(keep)
+    mapper.state = {k: v[keep] for k, v in mapper.state.items()}
+    return int((~keep).sum())
+
+
+def finalize(mapper: GaussianMapper, iterations: int | None = None) -> dict:
+    """Global refinement at the end of a run: Adam over *all* keyframes (random order, poses fixed).
+
+    ``iterations`` defaults to ``final_iterations``. Learning rates decay to 10 % over the pass;
+    afterwards only transparent Gaussians are pruned (no densification). Returns stats.
+    """
+    cfg = mapper.cfg
+    iters = cfg.final_iterations if iterations is None else int(iterations)
+    if not mapper._order or len(mapper.model) == 0 or iters <= 0:
+        return {"iterations": 0, "num_gaussians": len(mapper.model)}
+    order = list(mapper._order)
+    pick = epoch_picker(mapper, order)  # every keyframe once per epoch, so none is left out
+    t0 = time.perf_counter()
+    rounds = max(0, cfg.final_densify_rounds)
+    bounds = np.linspace(0, iters, rounds + 2).round().astype(int)
+    densified = 0
+    first = last = None
+    with torch_threads(cfg.num_threads):
+        reset_error_state(mapper)
+        for r in range(rounds + 1):
+            n = int(bounds[r + 1] - bounds[r])
+            if n <= 0:
+                continue
+            lr0 = 0.1 ** (bounds[r] / max(1, iters - 1))
+            f, last = adam_steps(
+                mapper, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0
+            )
+            first = f if first is None else first
+            if r < rounds:  # densify where the whole map still errs; no error-based pruning
+                mapper.model, mapper.state, st = mapper.strategy.step(
+                    mapper.model, mapper.state, densify_only=True
+                )
+                densified += st["cloned"] + st["split"]
+                reset_error_state(mapper)
+    pruned = prune_transparent(mapper)
+    dt = time.perf_counter() - t0
+    return {
+        "iterations": iters,
+        "seconds": dt,
+        "ms_per_iteration": 1000 * dt / iters,
+        "psnr_first": first,
+        "psnr_last": last,
+        "pruned": pruned,
+        "densified": densified,
+        "num_gaussians": len(mapper.model),
+    }

@@ -1,0 +1,183 @@
+"""The mapper's optimization step: Adam on the map (and selected keyframe poses) over keyframes.
+
+Per step one keyframe is rendered and supervised by colour L1+SSIM, inverse-depth L1, depth-normal
+consistency, the scale regularizer, the anchored pose loss (:mod:`gsslam.mapping.pose_refine`) for
+keyframes with a free pose, and GaussianFlow's flow loss for stored keyframe pairs starting at it. The
+per-Gaussian normalized error feeds the densification state (:mod:`gsslam.mapping.densify`).
+:func:`optimize_window` is SING3R's sliding-window map optimization; :func:`adam_steps` is shared with
+the final passes (:mod:`gsslam.mapping.final_pass`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import torch
+
+from gsslam.mapping import losses as L
+from gsslam.mapping.keyframes import Keyframe, torch_threads
+from gsslam.mapping.pose_refine import pose_loss
+from gsslam.mapping.rasterize import RenderOutput
+
+if TYPE_CHECKING:
+    from gsslam.mapping.mapper import GaussianMapper
+
+
+def optimize_window(mapper: GaussianMapper, iterations: int | None = None) -> dict:
+    """Adam over the window's keyframes (plus revisits of older ones), then densify/prune; returns stats.
+
+    Steps alternate between the newest keyframe and a random one of the window; a share
+    ``revisit_fraction`` of the steps goes to a random keyframe older than the window instead, so
+    regions seen earlier do not degrade. Only the newest ``pose_window`` keyframes (never the very
+    first, the gauge) get joint pose refinement.
+    """
+    cfg, order, rng = mapper.cfg, mapper._order, mapper._rng
+    iters = cfg.iterations if iterations is None else int(iterations)
+    win = order[-cfg.window :]
+    if not win or len(mapper.model) == 0 or iters <= 0:
+        return {"iterations": 0, "num_gaussians": len(mapper.model)}
+    old = order[: -len(win)]
+    pose_kfs = [i for i in win[-max(0, cfg.pose_window) :] if i != order[0]] if cfg.pose_refinement else []
+    if cfg.pose_window <= 0:
+        pose_kfs = []
+
+    def pick(it: int) -> int:
+        if old and rng.random() < cfg.revisit_fraction:
+            return old[int(rng.integers(len(old)))]
+        return win[-1] if it % 2 == 0 else win[int(rng.integers(len(win)))]
+
+    t0 = time.perf_counter()
+    with torch_threads(cfg.num_threads):
+        first, last = adam_steps(mapper, iters, pick, pose_kfs, win)
+        active = torch.isin(mapper.model.keyframe_id, torch.tensor(win, device=mapper.device))
+        mapper.model, mapper.state, dstats = mapper.strategy.step(mapper.model, mapper.state, active=active)
+    dt = time.perf_counter() - t0
+    return {
+        "iterations": iters,
+        "seconds": dt,
+        "ms_per_iteration": 1000 * dt / iters,
+        "psnr_first": first,
+        "psnr_last": last,
+        "num_gaussians": len(mapper.model),
+        **dstats,
+    }
+
+
+def adam_steps(
+    mapper: GaussianMapper,
+    iters: int,
+    pick: Callable[[int], int],
+    pose_kfs: list[int],
+    win: list[int],
+    decay: float = 1.0,
+    lr_scale: float = 1.0,
+    lr_pose: float | None = None,
+) -> tuple[float | None, float | None]:
+    """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
+
+    The map and the deltas of ``pose_kfs`` are optimized. Learning rates start at ``lr_scale`` x the
+    configured ones (``lr_pose`` for the poses, default ``cfg.lr_pose`` unscaled) and fall
+    exponentially to ``decay`` x their start over the steps.
+    """
+    cfg, kfs = mapper.cfg, mapper._kfs
+    params = {k: v.detach().clone().requires_grad_(True) for k, v in mapper.model.params().items()}
+    for k, v in params.items():
+        setattr(mapper.model, k, v)
+    lrs = {
+        "means": cfg.lr_means,
+        "quats": cfg.lr_quats,
+        "log_scales": cfg.lr_scales,
+        "opacity_logits": cfg.lr_opacity,
+        "sh_dc": cfg.lr_colors,
+    }
+    groups = [{"params": [params[k]], "lr": lr_scale * lrs[k]} for k in params]
+    for i in pose_kfs:
+        kfs[i].delta = kfs[i].delta.detach().clone().requires_grad_(True)
+    if pose_kfs:
+        groups.append({"params": [kfs[i].delta for i in pose_kfs], "lr": lr_pose or cfg.lr_pose})
+    opt = torch.optim.Adam(groups, eps=1e-15)
+    base = [g["lr"] for g in opt.param_groups]
+    gamma = decay ** (1.0 / max(1, iters - 1))
+    first = last = None
+    for it in range(iters):
+        idx = pick(it)
+        loss, psnr_val = step_loss(mapper, kfs[idx], pose=idx in pose_kfs, win=win)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if decay != 1.0:
+            for g, lr0 in zip(opt.param_groups, base):
+                g["lr"] = lr0 * gamma ** (it + 1)
+        first = psnr_val if first is None else first
+        last = psnr_val
+    for i in pose_kfs:
+        kfs[i].delta = kfs[i].delta.detach()
+    mapper.model = mapper.model.detached()
+    return first, last
+
+
+def step_loss(mapper: GaussianMapper, kf: Keyframe, pose: bool, win: list[int]) -> tuple[torch.Tensor, float]:
+    """The loss of one step at keyframe ``kf`` and its PSNR; updates the densification state."""
+    cfg, m, dev = mapper.cfg, mapper.model, mapper.device
+    out = mapper._render(kf.T_cam_world(dev, with_delta=True))
+    loss = L.color_loss(out.color, kf.image, cfg.lambda_ssim)
+    unit = kf.median_depth if cfg.depth_scale_free else 1.0
+    loss = loss + cfg.lambda_depth * L.inverse_depth_l1(
+        out.depth, kf.depth, weight=kf.depth_weight, unit=unit
+    )
+    if cfg.lambda_depth_normal > 0:
+        loss = loss + cfg.lambda_depth_normal * L.depth_normal_consistency(
+            out.depth, out.normal, mapper.K, mask=out.alpha.detach() > 0.5
+        )
+    loss = loss + cfg.lambda_scale * L.scale_regularizer(m.log_scales)
+    if pose:
+        loss = loss + pose_loss(cfg, out, kf)
+    # GaussianFlow: projected motion of the Gaussians vs measured flow, for pairs starting here
+    err = None
+    for (a, b), (flow, valid) in mapper._flows.items():
+        if a != kf.index or b not in win or cfg.lambda_flow <= 0:
+            continue
+        kb = mapper._kfs[b]
+        uv_b = project(mapper.K, m.means, kb.T_cam_world(dev, with_delta=b in win and kb.delta.requires_grad))
+        vis = visible(out)
+        fl, e, _ = L.flow_loss(
+            out.means2d,
+            uv_b,
+            flow,
+            valid,
+            weight=vis.float(),
+            sigma=cfg.flow_sigma_px,
+            inlier_prior=cfg.flow_inlier_prior,
+            outlier_range=cfg.flow_outlier_range_px,
+        )
+        loss = loss + cfg.lambda_flow * fl
+        err = e if err is None else torch.where(torch.isfinite(e), e, err)
+    with torch.no_grad():
+        if err is None:  # photometric analogue of the normalized error, at the Gaussians' pixels
+            vis = visible(out)
+            diff = (out.color - kf.image).abs().mean(-1) / (kf.image.mean(-1) + 0.1)
+            e = L.sample_image(diff[..., None], out.means2d.detach())[:, 0]
+            err = torch.where(vis, e, torch.full_like(e, float("nan")))
+        radius = torch.where(visible(out), out.radii.float(), torch.zeros_like(err))
+        mapper.strategy.update_state(mapper.state, err, radius)
+        psnr_val = float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
+    return loss, psnr_val
+
+
+def project(
+    K: torch.Tensor,  # [3, 3]
+    means: torch.Tensor,  # [N, 3] world
+    T_cam_world: torch.Tensor,  # [4, 4]
+) -> torch.Tensor:  # [N, 2] pixels
+    p = means @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = p[:, 2].clamp_min(1e-3)
+    return torch.stack([K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]], -1)
+
+
+@torch.no_grad()
+def visible(out: RenderOutput) -> torch.Tensor:
+    """Gaussians drawn in this view and not hidden behind the rendered surface -> [N] bool."""
+    d = L.sample_image(out.depth.detach()[..., None], out.means2d.detach())[:, 0]
+    return (out.radii > 0) & (out.depths.detach() <= 1.1 * d + 1e-3)

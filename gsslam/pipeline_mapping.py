@@ -46,6 +46,8 @@ class MapStage:
         self.iterations = 0
         self.final_iterations = 0
         self.last_stats: dict = {}
+        self.joint_stats: dict = {}  # final joint pose+map refinement (mapper.final_pose_iterations)
+        self.refined_keyframe_poses: dict[int, np.ndarray] = {}  # its keyframe T_world_cam (Sim(3))
 
     def global_id(self, chain: int, submap: int) -> int:
         return self._gid.setdefault((chain, submap), len(self._gid))
@@ -117,6 +119,10 @@ class MapStage:
         stats = self.mapper.finalize()
         self.seconds += stats.get("seconds", 0.0)
         self.final_iterations = stats.get("iterations", 0)
+        if self.cfg.final_pose_iterations > 0:
+            self.joint_stats = self.mapper.refine_joint()
+            self.seconds += self.joint_stats.get("seconds", 0.0)
+            self.refined_keyframe_poses = self.mapper.refined_poses()
         return stats
 
     # ---- feedback ----------------------------------------------------------------------------
@@ -157,6 +163,9 @@ class MapStage:
             "optimize_seconds": self.seconds,
             "iterations": self.iterations,
             "final_iterations": self.final_iterations,
+            "final_pose_iterations": self.joint_stats.get("iterations", 0),
+            "final_pose_moved_mean": self.joint_stats.get("pose_moved_mean"),
+            "final_pose_moved_max": self.joint_stats.get("pose_moved_max"),
             "depth_prior_factors": self.n_depth_priors,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,

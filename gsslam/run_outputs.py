@@ -261,4 +261,12 @@ def write_map_outputs(
     frames = [ds[i] for i in sorted(set(kfs) | set(others))]
     ev = mapper.evaluate(frames, poses) if frames else {}
     ev.pop("per_frame_psnr", None)
+    refined = stage.refined_keyframe_poses
+    if refined and kfs:  # the map after the joint refinement, seen from its own refined keyframe poses
+        ev_r = mapper.evaluate([ds[i] for i in kfs], {i: refined[i] for i in kfs if i in refined})
+        ev["psnr_keyframes_refined_poses"] = ev_r["psnr_keyframes"]
+        ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]
+        gt = ds.ground_truth()
+        align = "sim3" if pipe.monocular else "se3"
+        ev["ate_keyframes_refined_poses"], _ = _ate(gt, _trajectory(pipe, refined), align)
     return {**stage.metrics(), **ev, "ply_mb": ply_bytes / 1e6, "outputs_seconds": time.perf_counter() - t0}

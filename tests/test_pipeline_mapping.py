@@ -104,3 +104,17 @@ def test_mapper_disabled_leaves_no_map(bundled_tum, tmp_path):
     cfg = load_config(None, ["mapper.enabled=false", "loop.enabled=false"], mode="rgbd")
     m = run_dataset(ds, cfg, tmp_path, max_frames=12).metrics
     assert m["mapper"] is None and not (tmp_path / "map.ply").exists()
+
+
+def test_final_joint_refinement_reports_its_own_psnr_and_ate(bundled_tum, mapped_run, tmp_path):
+    out_off, off = mapped_run
+    m = _run(bundled_tum, tmp_path, ["mapper.final_pose_iterations=40"])
+    mp = m["mapper"]
+    assert mp["final_pose_iterations"] == 40
+    assert 0.0 < mp["final_pose_moved_max"] < 0.02  # anchored: millimetres, not centimetres
+    assert mp["psnr_keyframes_refined_poses"] > 23.5
+    assert mp["ate_keyframes_refined_poses"]["rmse_m"] < 0.02
+    # the output trajectory stays the graph's: the same as the run without the refinement
+    on_kf, off_kf = read_tum(tmp_path / "keyframes.tum"), read_tum(out_off / "keyframes.tum")
+    assert np.array_equal(on_kf.positions, off_kf.positions)
+    assert "psnr_keyframes_refined_poses" not in off["mapper"]

@@ -228,6 +228,15 @@ class GaussianMapper:
 
         return finalize(self, iterations)
 
+    def refine_joint(self, iterations: int | None = None) -> dict:
+        """Final joint pose+map refinement; see :func:`gsslam.mapping.final_pass.refine_joint`.
+
+        Afterwards :meth:`refined_poses` holds the refined keyframe poses.
+        """
+        from gsslam.mapping.final_pass import refine_joint
+
+        return refine_joint(self, iterations)
+
     @torch.no_grad()
     def render_keyframe(self, frame_index: int) -> RenderOutput:
         """Render a keyframe (with its refined pose) at the mapper resolution."""

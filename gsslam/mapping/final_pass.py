@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import TYPE_CHECKING
 
@@ -10,7 +9,7 @@ import numpy as np
 import torch
 
 from gsslam.mapping.keyframes import torch_threads
-from gsslam.mapping.window import adam_steps
+from gsslam.mapping.window import adam_steps, run_stats
 
 if TYPE_CHECKING:
     from gsslam.mapping.mapper import GaussianMapper
@@ -79,17 +78,7 @@ def finalize(mapper: GaussianMapper, iterations: int | None = None) -> dict:
                 densified += st["cloned"] + st["split"]
                 reset_error_state(mapper)
     pruned = prune_transparent(mapper)
-    dt = time.perf_counter() - t0
-    return {
-        "iterations": iters,
-        "seconds": dt,
-        "ms_per_iteration": 1000 * dt / iters,
-        "psnr_first": first,
-        "psnr_last": last,
-        "pruned": pruned,
-        "densified": densified,
-        "num_gaussians": len(mapper.model),
-    }
+    return run_stats(mapper, iters, t0, first, last, pruned=pruned, densified=densified)
 
 
 def refine_joint(mapper: GaussianMapper, iterations: int | None = None) -> dict:
@@ -110,28 +99,16 @@ def refine_joint(mapper: GaussianMapper, iterations: int | None = None) -> dict:
     before = mapper.refined_poses()
     pick = epoch_picker(mapper, order)
     t0 = time.perf_counter()
-    # the pose loss reads lambda_pose_prior from the mapper's config: the final pass's own weight
-    mapper.cfg = dataclasses.replace(cfg, lambda_pose_prior=cfg.final_pose_prior)
-    try:
-        with torch_threads(cfg.num_threads):
-            reset_error_state(mapper)
-            first, last = adam_steps(
-                mapper, iters, pick, free, order, decay=0.1, lr_scale=0.1, lr_pose=cfg.final_lr_pose
-            )
-            pruned = prune_transparent(mapper)
-    finally:
-        mapper.cfg = cfg
+    with torch_threads(cfg.num_threads):
+        reset_error_state(mapper)
+        first, last = adam_steps(
+            mapper, iters, pick, free, order, decay=0.1, lr_scale=0.1,
+            lr_pose=cfg.final_lr_pose, pose_prior_weight=cfg.final_pose_prior,
+        )  # fmt: skip
+        pruned = prune_transparent(mapper)
     after = mapper.refined_poses()
     moved = [float(np.linalg.norm(after[i][:3, 3] - before[i][:3, 3])) for i in order]
-    dt = time.perf_counter() - t0
-    return {
-        "iterations": iters,
-        "seconds": dt,
-        "ms_per_iteration": 1000 * dt / iters,
-        "psnr_first": first,
-        "psnr_last": last,
-        "pruned": pruned,
-        "num_gaussians": len(mapper.model),
-        "pose_moved_mean": float(np.mean(moved)),
-        "pose_moved_max": float(np.max(moved)),
-    }
+    return run_stats(
+        mapper, iters, t0, first, last, pruned=pruned,
+        pose_moved_mean=float(np.mean(moved)), pose_moved_max=float(np.max(moved)),
+    )  # fmt: skip

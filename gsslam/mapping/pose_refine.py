@@ -23,25 +23,29 @@ if TYPE_CHECKING:
 _log = logging.getLogger(__name__)
 
 
-def pose_prior(cfg: MapperConfig, kf: Keyframe) -> torch.Tensor:
-    """Anchors the delta: ``lambda_pose_prior * (|rho / (r z_med)|^2 + |phi / r|^2)``.
+def pose_prior(cfg: MapperConfig, kf: Keyframe, weight: float | None = None) -> torch.Tensor:
+    """Anchors the delta: ``weight * (|rho / (r z_med)|^2 + |phi / r|^2)``.
 
-    ``r`` is ``pose_prior_rel``; ``z_med`` the keyframe's median depth.
+    ``r`` is ``pose_prior_rel``; ``z_med`` the keyframe's median depth; ``weight`` defaults to
+    ``lambda_pose_prior``.
     """
     r = cfg.pose_prior_rel
-    return cfg.lambda_pose_prior * (
+    w = cfg.lambda_pose_prior if weight is None else weight
+    return w * (
         ((kf.delta[:3] - kf.anchor[:3]) / (r * kf.median_depth)).square().sum()
         + ((kf.delta[3:] - kf.anchor[3:]) / r).square().sum()
     )
 
 
-def pose_loss(cfg: MapperConfig, out: RenderOutput, kf: Keyframe, prior: bool = True) -> torch.Tensor:
-    """Photometric L1 + scale-invariant depth under ``alpha > 0.9`` (+ the anchor prior)."""
+def pose_loss(
+    cfg: MapperConfig, out: RenderOutput, kf: Keyframe, prior: bool = True, prior_weight: float | None = None
+) -> torch.Tensor:
+    """Photometric L1 + scale-invariant depth under ``alpha > 0.9`` (+ :func:`pose_prior`)."""
     mask = out.alpha.detach() > 0.9
     loss = L.l1(out.color, kf.image, mask) + cfg.lambda_pose_depth * L.scale_invariant_depth(
         out.depth, kf.depth, mask
     )
-    return loss + pose_prior(cfg, kf) if prior else loss
+    return loss + pose_prior(cfg, kf, prior_weight) if prior else loss
 
 
 def refine_pose(mapper: GaussianMapper, kf: Keyframe, iterations: int) -> float:

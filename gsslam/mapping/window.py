@@ -53,15 +53,20 @@ def optimize_window(mapper: GaussianMapper, iterations: int | None = None) -> di
         first, last = adam_steps(mapper, iters, pick, pose_kfs, win)
         active = torch.isin(mapper.model.keyframe_id, torch.tensor(win, device=mapper.device))
         mapper.model, mapper.state, dstats = mapper.strategy.step(mapper.model, mapper.state, active=active)
+    return run_stats(mapper, iters, t0, first, last, **dstats)
+
+
+def run_stats(mapper: GaussianMapper, iters: int, t0: float, first, last, **extra) -> dict:
+    """The stats dict every optimisation pass returns (time since ``t0``, step PSNRs, map size)."""
     dt = time.perf_counter() - t0
     return {
         "iterations": iters,
         "seconds": dt,
-        "ms_per_iteration": 1000 * dt / iters,
+        "ms_per_iteration": 1000 * dt / max(iters, 1),
         "psnr_first": first,
         "psnr_last": last,
         "num_gaussians": len(mapper.model),
-        **dstats,
+        **extra,
     }
 
 
@@ -74,12 +79,14 @@ def adam_steps(
     decay: float = 1.0,
     lr_scale: float = 1.0,
     lr_pose: float | None = None,
+    pose_prior_weight: float | None = None,
 ) -> tuple[float | None, float | None]:
     """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
 
     The map and the deltas of ``pose_kfs`` are optimized. Learning rates start at ``lr_scale`` x the
     configured ones (``lr_pose`` for the poses, default ``cfg.lr_pose`` unscaled) and fall
-    exponentially to ``decay`` x their start over the steps.
+    exponentially to ``decay`` x their start over the steps. ``pose_prior_weight`` overrides
+    ``lambda_pose_prior`` for the poses' anchor prior.
     """
     cfg, kfs = mapper.cfg, mapper._kfs
     params = {k: v.detach().clone().requires_grad_(True) for k, v in mapper.model.params().items()}
@@ -103,7 +110,7 @@ def adam_steps(
     first = last = None
     for it in range(iters):
         idx = pick(it)
-        loss, psnr_val = step_loss(mapper, kfs[idx], pose=idx in pose_kfs, win=win)
+        loss, psnr_val = step_loss(mapper, kfs[idx], idx in pose_kfs, win, pose_prior_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -118,7 +125,9 @@ def adam_steps(
     return first, last
 
 
-def step_loss(mapper: GaussianMapper, kf: Keyframe, pose: bool, win: list[int]) -> tuple[torch.Tensor, float]:
+def step_loss(
+    mapper: GaussianMapper, kf: Keyframe, pose: bool, win: list[int], pose_prior_weight: float | None = None
+) -> tuple[torch.Tensor, float]:
     """The loss of one step at keyframe ``kf`` and its PSNR; updates the densification state."""
     cfg, m, dev = mapper.cfg, mapper.model, mapper.device
     out = mapper._render(kf.T_cam_world(dev, with_delta=True))
@@ -133,7 +142,7 @@ def step_loss(mapper: GaussianMapper, kf: Keyframe, pose: bool, win: list[int]) 
         )
     loss = loss + cfg.lambda_scale * L.scale_regularizer(m.log_scales)
     if pose:
-        loss = loss + pose_loss(cfg, out, kf)
+        loss = loss + pose_loss(cfg, out, kf, prior_weight=pose_prior_weight)
     # GaussianFlow: projected motion of the Gaussians vs measured flow, for pairs starting here
     err = None
     for (a, b), (flow, valid) in mapper._flows.items():

@@ -63,7 +63,7 @@ class MonoEncoder:
     def _tracks(self, imgs):
         """Chained flows 0 -> i and i -> 0 and their validity masks (index 0 unused)."""
         n = len(imgs)
-        tex = textured_mask(imgs[0])
+        tex = textured_mask(imgs[0], self.cfg.min_texture_gradient)
         fw, bw, valid = [None] * n, [None] * n, [None] * n
         for i in range(1, n):
             f = self.flow(imgs[i - 1], imgs[i])
@@ -226,13 +226,13 @@ class MonoEncoder:
                     np.nan_to_num(fw[i], nan=1e6),
                     FB_THRESHOLD_PX,
                     relative=0.01,
-                ) & textured_mask(imgs[i])
+                ) & textured_mask(imgs[i], self.cfg.min_texture_gradient)
             else:
                 init = compose_flows(bw[i], fw[j])
                 f_ij = self.flow(imgs[i], imgs[j], init=np.nan_to_num(init))
                 f_ji = self.flow(imgs[j], imgs[i], init=np.nan_to_num(compose_flows(bw[j], fw[i])))
                 ok = forward_backward_mask(f_ij, f_ji, FB_THRESHOLD_PX, relative=0.01) & textured_mask(
-                    imgs[i]
+                    imgs[i], self.cfg.min_texture_gradient
                 )
             T_j_i = invert_T(T_local[j]) @ T_local[i]
             X, par, err = triangulate_rays(K, uv, uv + np.nan_to_num(f_ij.reshape(-1, 2)), T_j_i)

@@ -127,10 +127,12 @@ class MapperConfig:
     prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
-    final_iterations: int = 1000  # finalize(): global pass over all keyframes at the end of a run
+    final_iterations_per_keyframe: int = 32  # finalize(): global pass of this x keyframes steps at the end
+    final_lr_scale: float = 3.0  # finalize(): learning rates start at this x the lr_* above, decay to 10 %
     final_densify_rounds: int = (
         0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
     )
+    final_lambda_flow: float = 0.0  # finalize(): flow loss weight of the global pass (docs/mapping.md)
     final_pose_iterations: int = 0  # final joint pose+map refinement after finalize() (0: off; docs)
     final_lr_pose: float = 5e-4  # its Adam step of the keyframe se(3) deltas (decays to 10 %)
     final_pose_prior: float = 0.1  # its lambda_pose_prior (anchor to the graph poses)

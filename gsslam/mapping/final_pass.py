@@ -46,11 +46,17 @@ def prune_transparent(mapper: GaussianMapper) -> int:
 def finalize(mapper: GaussianMapper, iterations: int | None = None) -> dict:
     """Global refinement at the end of a run: Adam over *all* keyframes (random order, poses fixed).
 
-    ``iterations`` defaults to ``final_iterations``. Learning rates decay to 10 % over the pass;
-    afterwards only transparent Gaussians are pruned (no densification). Returns stats.
+    ``iterations`` defaults to ``final_iterations_per_keyframe`` x the keyframe count (so the
+    pass costs the same per keyframe on short and long runs). Learning rates start at ``final_lr_scale`` x the
+    configured ones and decay to 10 % of that over the pass; the flow loss is weighted by
+    ``final_lambda_flow``. Afterwards only transparent Gaussians are pruned (no densification).
+    Returns stats.
     """
     cfg = mapper.cfg
-    iters = cfg.final_iterations if iterations is None else int(iterations)
+    if iterations is None:
+        iters = cfg.final_iterations_per_keyframe * len(mapper._order)
+    else:
+        iters = int(iterations)
     if not mapper._order or len(mapper.model) == 0 or iters <= 0:
         return {"iterations": 0, "num_gaussians": len(mapper.model)}
     order = list(mapper._order)
@@ -66,10 +72,11 @@ def finalize(mapper: GaussianMapper, iterations: int | None = None) -> dict:
             n = int(bounds[r + 1] - bounds[r])
             if n <= 0:
                 continue
-            lr0 = 0.1 ** (bounds[r] / max(1, iters - 1))
+            lr0 = cfg.final_lr_scale * 0.1 ** (bounds[r] / max(1, iters - 1))
             f, last = adam_steps(
-                mapper, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0
-            )
+                mapper, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0,
+                lambda_flow=cfg.final_lambda_flow,
+            )  # fmt: skip
             first = f if first is None else first
             if r < rounds:  # densify where the whole map still errs; no error-based pruning
                 mapper.model, mapper.state, st = mapper.strategy.step(

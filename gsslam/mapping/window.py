@@ -80,13 +80,14 @@ def adam_steps(
     lr_scale: float = 1.0,
     lr_pose: float | None = None,
     pose_prior_weight: float | None = None,
+    lambda_flow: float | None = None,
 ) -> tuple[float | None, float | None]:
     """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
 
     The map and the deltas of ``pose_kfs`` are optimized. Learning rates start at ``lr_scale`` x the
     configured ones (``lr_pose`` for the poses, default ``cfg.lr_pose`` unscaled) and fall
     exponentially to ``decay`` x their start over the steps. ``pose_prior_weight`` overrides
-    ``lambda_pose_prior`` for the poses' anchor prior.
+    ``lambda_pose_prior`` for the poses' anchor prior, ``lambda_flow`` the flow loss weight.
     """
     cfg, kfs = mapper.cfg, mapper._kfs
     params = {k: v.detach().clone().requires_grad_(True) for k, v in mapper.model.params().items()}
@@ -110,7 +111,7 @@ def adam_steps(
     first = last = None
     for it in range(iters):
         idx = pick(it)
-        loss, psnr_val = step_loss(mapper, kfs[idx], idx in pose_kfs, win, pose_prior_weight)
+        loss, psnr_val = step_loss(mapper, kfs[idx], idx in pose_kfs, win, pose_prior_weight, lambda_flow)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -126,10 +127,19 @@ def adam_steps(
 
 
 def step_loss(
-    mapper: GaussianMapper, kf: Keyframe, pose: bool, win: list[int], pose_prior_weight: float | None = None
+    mapper: GaussianMapper,
+    kf: Keyframe,
+    pose: bool,
+    win: list[int],
+    pose_prior_weight: float | None = None,
+    lambda_flow: float | None = None,
 ) -> tuple[torch.Tensor, float]:
-    """The loss of one step at keyframe ``kf`` and its PSNR; updates the densification state."""
+    """The loss of one step at keyframe ``kf`` and its PSNR; updates the densification state.
+
+    ``lambda_flow`` overrides ``cfg.lambda_flow`` (the final pass uses ``final_lambda_flow``).
+    """
     cfg, m, dev = mapper.cfg, mapper.model, mapper.device
+    w_flow = cfg.lambda_flow if lambda_flow is None else lambda_flow
     out = mapper._render(kf.T_cam_world(dev, with_delta=True))
     loss = L.color_loss(out.color, kf.image, cfg.lambda_ssim)
     unit = kf.median_depth if cfg.depth_scale_free else 1.0
@@ -146,7 +156,7 @@ def step_loss(
     # GaussianFlow: projected motion of the Gaussians vs measured flow, for pairs starting here
     err = None
     for (a, b), (flow, valid) in mapper._flows.items():
-        if a != kf.index or b not in win or cfg.lambda_flow <= 0:
+        if a != kf.index or b not in win or w_flow <= 0:
             continue
         kb = mapper._kfs[b]
         uv_b = project(mapper.K, m.means, kb.T_cam_world(dev, with_delta=b in win and kb.delta.requires_grad))
@@ -161,7 +171,7 @@ def step_loss(
             inlier_prior=cfg.flow_inlier_prior,
             outlier_range=cfg.flow_outlier_range_px,
         )
-        loss = loss + cfg.lambda_flow * fl
+        loss = loss + w_flow * fl
         err = e if err is None else torch.where(torch.isfinite(e), e, err)
     with torch.no_grad():
         if err is None:  # photometric analogue of the normalized error, at the Gaussians' pixels

@@ -137,6 +137,25 @@ def test_flow_supervision_runs_and_keeps_consistent_maps_consistent(teddy_frames
         m.add_flow(f0.index, 999, flow, valid)
 
 
+def test_flow_weight_override_switches_the_flow_term(teddy_frames):
+    """``step_loss(lambda_flow=...)`` (the final pass uses ``final_lambda_flow``) replaces the weight."""
+    from gsslam.mapping.window import step_loss
+
+    f0, f1 = teddy_frames[:2]
+    m = GaussianMapper(dataclasses.replace(CFG, pose_refinement=False), f0.intrinsics)
+    m.add_keyframe(f0, f0.T_world_cam_gt, 0)
+    m.add_keyframe(f1, f1.T_world_cam_gt, 0)
+    flow = np.full((480, 640, 2), 40.0, np.float32)  # far from the true motion: a large flow cost
+    m.add_flow(f0.index, f1.index, flow, np.ones((480, 640), bool))
+    kf, win = m._kfs[f0.index], m.keyframe_indices
+    with torch.no_grad():
+        base = float(step_loss(m, kf, False, win, lambda_flow=0.0)[0])
+        default = float(step_loss(m, kf, False, win)[0])  # cfg.lambda_flow = 1
+        strong = float(step_loss(m, kf, False, win, lambda_flow=2.0)[0])
+    assert default > base + 0.1
+    assert strong - base == pytest.approx(2.0 * (default - base), rel=1e-4)
+
+
 def test_outputs_ply_panels_and_render_run(mapped, teddy_frames, tmp_path):
     size = mapped.save_ply(tmp_path / "map.ply")
     assert size == pytest.approx(mapped.size_mb * 1e6, rel=0.05)

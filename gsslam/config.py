@@ -56,7 +56,7 @@ class EncoderConfig:
         False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
     )
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
-    min_texture_gradient: float = 0.005  # mono: pixels below this local gradient (intensity/px) get no depth
+    min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
 

@@ -142,8 +142,8 @@ def test_black_and_repeated_frames_do_not_crash(scene, mode):
 def test_mono_depth_on_real_frames_is_accurate_and_covers_weak_texture(bundled_tum, ids):
     """Mono point maps on real TUM frames vs the sensor depth (never shown to the encoder).
 
-    Measured (docs/frontend.md): with the default ``min_texture_gradient`` 0.005 the non-shared frames
-    get depth on 21-33 % of pixels at ~1 % median error; the old hard-coded 0.02 covered 11-20 %.
+    Measured (docs/frontend.md): with the default ``min_texture_gradient`` 0.01 the non-shared frames
+    get depth on 17-31 % of pixels at ~1 % median error; the old hard-coded 0.02 covered 11-20 %.
     """
     frames = load_tum(bundled_tum, ids)
     sensor = [f.depth[::2, ::2] for f in frames]
@@ -161,7 +161,7 @@ def test_mono_depth_on_real_frames_is_accurate_and_covers_weak_texture(bundled_t
         return np.array(cover), np.array(rel)
 
     cover, rel = coverage_and_error(_encoder("mono").encode(frames))
-    assert cover.min() > 0.18, cover
+    assert cover.min() > 0.15, cover
     assert rel.max() < 0.02, rel
     cover_strict, _ = coverage_and_error(_encoder("mono", min_texture_gradient=0.02).encode(frames))
     assert cover.mean() > 1.3 * cover_strict.mean(), (cover, cover_strict)

@@ -49,7 +49,9 @@ class RunResult:
             ("peak RSS", f"{m.get('peak_rss_mb', 0.0):.0f} MB"),
         ]
         mp = m.get("mapper") or {}
-        if "psnr_keyframes" in mp:
+        if mp.get("empty"):
+            rows.append(("map", "empty: 0 Gaussians (no keyframe had usable depth; docs/pipeline.md)"))
+        elif "psnr_keyframes" in mp:
             rows.append(
                 (
                     "map",
@@ -269,4 +271,16 @@ def write_map_outputs(
         gt = ds.ground_truth()
         align = "sim3" if pipe.monocular else "se3"
         ev["ate_keyframes_refined_poses"], _ = _ate(gt, _trajectory(pipe, refined), align)
-    return {**stage.metrics(), **ev, "ply_mb": ply_bytes / 1e6, "outputs_seconds": time.perf_counter() - t0}
+    empty = mapper.num_gaussians == 0
+    if empty:
+        log.warning(
+            "the map is empty: no keyframe had depth with confidence >= mapper.min_confidence "
+            "(a camera at rest or only rotating observes none); its PSNR is that of a blank render"
+        )
+    return {
+        **stage.metrics(),
+        **ev,
+        "empty": empty,
+        "ply_mb": ply_bytes / 1e6,
+        "outputs_seconds": time.perf_counter() - t0,
+    }

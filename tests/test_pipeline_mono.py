@@ -57,6 +57,34 @@ def test_mono_bundled_euroc_without_ground_truth(repo_root, tmp_path):
     assert len(traj) == 20 and np.abs(traj.poses[:, :3, 3]).max() < 0.05  # unit = scene depth
 
 
+def test_static_camera_gives_an_empty_map_that_is_reported_as_such(repo_root, tmp_path):
+    """A camera at rest observes no depth: the mapper seeds nothing, and the run says so plainly."""
+    from gsslam.pipeline import run_sequence
+
+    cfg = load_config(None, ["loop.enabled=false"], mode="mono")
+    res = run_sequence(repo_root / "data" / "euroc_V1_01_easy_20", "euroc", cfg, tmp_path, progress=False)
+    mp = json.loads((tmp_path / "metrics.json").read_text())["mapper"]
+    assert mp["num_gaussians"] == 0 and mp["empty"] is True
+    assert dict(res.summary_rows())["map"].startswith("empty: 0 Gaussians")
+    assert (tmp_path / "map.ply").is_file()  # still written, with no vertices
+
+
+def test_mapped_mono_run_reports_a_non_empty_map(bundled_tum, tmp_path):
+    from gsslam.pipeline import run_sequence
+
+    over = [
+        "loop.enabled=false",
+        "mapper.max_side=80",
+        "mapper.iterations=5",
+        "mapper.final_iterations_per_keyframe=2",
+    ]
+    res = run_sequence(bundled_tum, "tum", load_config(None, over, mode="mono"), tmp_path, max_frames=20,
+                       progress=False)  # fmt: skip
+    mp = json.loads((tmp_path / "metrics.json").read_text())["mapper"]
+    assert mp["num_gaussians"] > 500 and mp["empty"] is False
+    assert "Gaussians" in dict(res.summary_rows())["map"] and "PSNR" in dict(res.summary_rows())["map"]
+
+
 def test_interpolate_poses_between_neighbours():
     from gsslam.geometry import make_T, so3_exp
 

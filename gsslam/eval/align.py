@@ -80,5 +80,7 @@ def align_positions(gt_xyz: np.ndarray, est_xyz: np.ndarray, method: str = "sim3
             "collinear or identical; use --align none"
         )
     T = umeyama(est_xyz, gt_xyz, with_scale=(method == "sim3"))
+    if method == "se3":  # the rotation block is a rotation: no scale, not even 1 - 1e-15
+        return Alignment(method, T[:3, :3].copy(), T[:3, 3].copy(), 1.0)
     s = float(np.cbrt(np.linalg.det(T[:3, :3])))
     return Alignment(method, T[:3, :3] / s, T[:3, 3].copy(), s)

@@ -19,7 +19,7 @@ import yaml
 
 from gsslam.datasets.base import DatasetError
 from gsslam.geometry import make_T, quat_to_rot
-from gsslam.types import CameraIntrinsics, Trajectory
+from gsslam.types import CameraIntrinsics, Trajectory, TypesError
 
 
 class DatasetFormatError(DatasetError):
@@ -48,9 +48,15 @@ def parse_floats(fields: list[str], count: int, path: Path, line: int) -> np.nda
             f"{path}:{line}: expected {count} numbers, got {len(fields)}: {' '.join(fields)}"
         )
     try:
-        return np.array([float(x) for x in fields[:count]], dtype=np.float64)
+        values = np.array([float(x) for x in fields[:count]], dtype=np.float64)
     except ValueError:
         raise DatasetFormatError(f"{path}:{line}: not a number in: {' '.join(fields)}") from None
+    if not np.all(np.isfinite(values)):
+        raise DatasetFormatError(
+            f"{path}:{line}: non-finite value (nan/inf) in: {' '.join(fields[:count])}; "
+            "fix or delete this row"
+        )
+    return values
 
 
 def check_increasing(timestamps: np.ndarray, source: Path | str, lines: list[int] | None = None) -> None:
@@ -96,6 +102,10 @@ def read_tum_trajectory(path: Path, what: str = "trajectory") -> Trajectory:
         raise DatasetFormatError(f"{what} {path} has no poses")
     vals = np.stack([parse_floats(f, 8, path, n) for n, f in rows])
     check_increasing(vals[:, 0], path, [n for n, _ in rows])
+    norms = np.linalg.norm(vals[:, 4:8], axis=1)
+    if np.any(norms < 1e-6):
+        n = rows[int(np.argmax(norms < 1e-6))][0]
+        raise DatasetFormatError(f"{path}:{n}: quaternion (qx qy qz qw) is zero; fix or delete this row")
     poses = np.stack([pose_from_tum(v[1:]) for v in vals])
     return Trajectory(vals[:, 0], poses, meta={"source": str(path)})
 
@@ -145,18 +155,33 @@ def normalize_index(index: int, n: int) -> int:
     return i
 
 
+def read_yaml_mapping(path: Path, what: str, keys: str) -> dict:
+    """A YAML file that must hold a mapping; binary or malformed files raise with the file named."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise DatasetFormatError(
+            f"{what} {path} is not a text file (binary data?); write a YAML mapping with {keys}"
+        ) from None
+    except OSError as e:
+        raise DatasetFormatError(f"cannot read {what} {path}: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise DatasetFormatError(f"{what} {path} is not valid YAML ({first}); write a mapping with {keys}") from None
+    if not isinstance(data, dict):
+        raise DatasetFormatError(f"{what} {path} must be a YAML mapping with keys {keys}")
+    return data
+
+
 def load_intrinsics_yaml(path: Path, width: int | None = None, height: int | None = None) -> CameraIntrinsics:
     """Intrinsics from a YAML file with ``fx, fy, cx, cy`` and optional ``distortion``, ``width``,
     ``height``; the size falls back to ``width``/``height`` given here."""
     path = Path(path)
     if not path.is_file():
         raise DatasetFormatError(f"intrinsics file is missing: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise DatasetFormatError(f"intrinsics file {path} is not valid YAML: {e}") from None
-    if not isinstance(data, dict):
-        raise DatasetFormatError(f"intrinsics file {path} must be a mapping with keys fx, fy, cx, cy")
+    data = read_yaml_mapping(path, "intrinsics file", "fx, fy, cx, cy")
     missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
     if missing:
         raise DatasetFormatError(
@@ -173,3 +198,5 @@ def load_intrinsics_yaml(path: Path, width: int | None = None, height: int | Non
         )
     except (TypeError, ValueError) as e:
         raise DatasetFormatError(f"intrinsics file {path}: bad value ({e}); use numbers") from None
+    except TypesError as e:
+        raise DatasetFormatError(f"intrinsics file {path}: {e}") from None

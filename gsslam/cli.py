@@ -101,7 +101,8 @@ def _check_out_folder(out: Path) -> None:
         if parent.exists():
             if not parent.is_dir():
                 raise typer.BadParameter(
-                    f"{parent} is a file, so {out} cannot be a folder; choose another path", param_hint="--out"
+                    f"{parent} is a file, so {out} cannot be a folder; choose another path",
+                    param_hint="--out",
                 )
             break
 
@@ -252,7 +253,15 @@ EXIT_USAGE = 2  # usage or input error the user can fix
 EXIT_SIGINT = 128 + signal.SIGINT  # 130
 EXIT_SIGTERM = 128 + signal.SIGTERM  # 143
 # OSError numbers that mean "this path cannot be used as given": the user fixes the path
-_PATH_ERRNOS = (errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.EACCES, errno.EPERM, errno.EEXIST, errno.EROFS)
+_PATH_ERRNOS = (
+    errno.ENOENT,
+    errno.ENOTDIR,
+    errno.EISDIR,
+    errno.EACCES,
+    errno.EPERM,
+    errno.EEXIST,
+    errno.EROFS,
+)
 
 
 def _one_line(text: str) -> str:
@@ -297,7 +306,7 @@ def run_cli(argv: list[str] | None = None) -> int:
         return _fail(e.format_message() + where, EXIT_USAGE)
     except click.ClickException as e:
         return _fail(e.format_message(), e.exit_code)
-    except (KeyboardInterrupt, click.Abort):
+    except (KeyboardInterrupt, typer.Abort):
         typer.echo("interrupted", err=True)
         return EXIT_SIGTERM if received else EXIT_SIGINT
     except OSError as e:

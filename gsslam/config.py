@@ -331,11 +331,14 @@ class Range:
         return not (self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi))
 
     def describe(self, integer: bool = False) -> str:
+        def num(x: float) -> str:
+            return str(int(x)) if integer else f"{x:g}"
+
         parts = []
         if self.lo is not None:
-            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
+            parts.append(f"{'>' if self.lo_open else '>='} {num(self.lo)}")
         if self.hi is not None:
-            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
+            parts.append(f"{'<' if self.hi_open else '<='} {num(self.hi)}")
         kind = "an integer" if integer else "a finite number"
         return f"{kind} " + " and ".join(parts) if parts else kind
 

@@ -112,7 +112,8 @@ class Frame:
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise TypesError(
                     f"frame {self.index}: T_world_cam_gt must be a finite [4, 4] matrix, got "
-                    f"{T.shape if T.shape != (4, 4) else 'non-finite values'}; pass None when there is no pose"
+                    f"{T.shape if T.shape != (4, 4) else 'non-finite values'}; "
+                    "pass None when there is no pose"
                 )
 
     @classmethod
@@ -144,7 +145,8 @@ class Frame:
             img = img.astype(np.float32, copy=False)
         else:
             raise TypesError(
-                f"frame {index}: image dtype {img.dtype} is not supported; give uint8, uint16 or float in [0, 1]"
+                f"frame {index}: image dtype {img.dtype} is not supported; "
+                "give uint8, uint16 or float in [0, 1]"
             )
         dep = None
         if depth is not None:
@@ -210,7 +212,7 @@ def _check_depth(depth: np.ndarray, index: int) -> None:
     median = float(np.median(valid)) if valid.size else float(np.median(depth[known]))
     if median > MAX_MEDIAN_DEPTH_M:
         raise TypesError(
-            f"frame {index}: median depth is {median:.4g}, which can only be millimetres or raw sensor units; "
+            f"frame {index}: median depth is {median:.4g}, which can only be millimetres or raw units; "
             "depth must be metres: divide by the sensor's scale (1000 for millimetres, 5000 for TUM) or use "
             "Frame.from_arrays(..., depth_scale=...)"
         )

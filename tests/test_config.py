@@ -59,7 +59,9 @@ def test_bad_files(tmp_path: Path):
     bad.write_text("mapper: [1, 2\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(bad)
-    with pytest.raises(ConfigError, match="mode=.stereo. set by argument is out of range: must be one of .mono., .rgbd."):
+    with pytest.raises(
+        ConfigError, match="mode=.stereo. set by argument is out of range: must be one of .mono., .rgbd."
+    ):
         load_config(mode="stereo")
 
 

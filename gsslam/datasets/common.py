@@ -169,7 +169,9 @@ def read_yaml_mapping(path: Path, what: str, keys: str) -> dict:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise DatasetFormatError(f"{what} {path} is not valid YAML ({first}); write a mapping with {keys}") from None
+        raise DatasetFormatError(
+            f"{what} {path} is not valid YAML ({first}); write a mapping with {keys}"
+        ) from None
     if not isinstance(data, dict):
         raise DatasetFormatError(f"{what} {path} must be a YAML mapping with keys {keys}")
     return data

@@ -62,7 +62,9 @@ def read_header(path: Path) -> tuple[int, int, str]:
         with Image.open(path) as im:
             return int(im.size[0]), int(im.size[1]), str(im.mode)
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError):
-        raise ImageReadError(f"cannot decode image {path} (corrupt or not an image); replace the file") from None
+        raise ImageReadError(
+            f"cannot decode image {path} (corrupt or not an image); replace the file"
+        ) from None
 
 
 def check_image_files(

@@ -34,7 +34,9 @@ from gsslam.types import CameraIntrinsics, Frame, Trajectory
 log = logging.getLogger(__name__)
 
 DEFAULT_FPS = 30.0
-_YAML_EXAMPLE = "{fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5} (optional: distortion: [k1, k2, p1, p2], fps: 30)"
+_YAML_EXAMPLE = (
+    "{fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5} (optional: distortion: [k1, k2, p1, p2], fps: 30)"
+)
 
 
 class ImagesError(DatasetError):

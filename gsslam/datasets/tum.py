@@ -136,7 +136,9 @@ class TumRgbdDataset:
         # headers only: an odd-sized or 8-bit depth file is refused now, not when the run reaches it
         size = (intrinsics.width, intrinsics.height)
         check_image_files([self.root / f for f in self._rgb], size, "rgb image")
-        check_image_files([self.root / f for f in self._depth if f is not None], size, "depth map", depth=True)
+        check_image_files(
+            [self.root / f for f in self._depth if f is not None], size, "depth map", depth=True
+        )
 
         gt_file = Path(gt_path) if gt_path is not None else self.root / "groundtruth.txt"
         traj: Trajectory | None = None

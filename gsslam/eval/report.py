@@ -79,8 +79,9 @@ def check_time_order(traj: Trajectory, name: str) -> None:
         i = int(bad[0]) + 1
         kind = "repeats" if t[i] == t[i - 1] else "comes before"
         raise TimeOrderError(
-            f"{name}: pose {i + 1} (t={float(t[i])!r}) {kind} the pose above it (t={float(t[i - 1])!r}); timestamps must "
-            f"be strictly increasing: sort the file by time (e.g. sort -g -k1) and drop repeated stamps"
+            f"{name}: pose {i + 1} (t={float(t[i])!r}) {kind} the pose above it (t={float(t[i - 1])!r}); "
+            "timestamps must be strictly increasing: sort the file by time (e.g. sort -g -k1) "
+            "and drop repeated stamps"
         )
 
 

@@ -40,20 +40,25 @@ def load_intrinsics(path: str | Path) -> CameraIntrinsics:
     p = Path(path)
     if not p.is_file():
         raise RenderRunError(f"{p} not found; the run must save its camera with save_intrinsics()")
-    d = yaml.safe_load(p.read_text()) or {}
     try:
+        d = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
         return CameraIntrinsics(
             float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"])
         )
     except KeyError as e:
         raise RenderRunError(f"{p}: missing key {e}; need fx, fy, cx, cy, width, height") from None
+    except (yaml.YAMLError, UnicodeDecodeError, TypeError, ValueError, AttributeError, GsslamError):
+        raise RenderRunError(
+            f"{p} is not a valid intrinsics file (a mapping of fx, fy, cx, cy, width, height); "
+            "rerun gsslam run to rewrite it"
+        ) from None
 
 
 def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N], T_world_cam [N, 4, 4]
     if not path.is_file():
         raise RenderRunError(f"trajectory not found: {path}")
     ts, poses = [], []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         v = line.split()
@@ -61,7 +66,10 @@ def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N]
             raise RenderRunError(
                 f"{path}:{n}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v)} values"
             )
-        x = np.array([float(a) for a in v])
+        try:
+            x = np.array([float(a) for a in v])
+        except ValueError:
+            raise RenderRunError(f"{path}:{n}: not a number in '{line.strip()}'") from None
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_rot(x[4:8]), x[1:4]
         ts.append(x[0])
@@ -88,9 +96,14 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
     max_side = 160
     cfg_path = run_dir / "config.yaml"
     if cfg_path.is_file():
-        max_side = int(
-            ((yaml.safe_load(cfg_path.read_text()) or {}).get("mapper") or {}).get("max_side", 160)
-        )
+        from gsslam.config import read_config_file
+
+        value = (read_config_file(cfg_path).get("mapper") or {}).get("max_side", 160)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 16:
+            raise RenderRunError(
+                f"{cfg_path}: mapper.max_side must be an integer >= 16, got {value!r}; fix or delete the file"
+            )
+        max_side = value
     intr = intr.scaled(min(1.0, max_side / max(intr.width, intr.height)))
     K = torch.tensor(intr.K, dtype=torch.float32)
     means = torch.as_tensor(g.means)

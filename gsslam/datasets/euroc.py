@@ -74,7 +74,13 @@ def read_sensor_yaml(path: Path) -> dict:
     """An ASL ``sensor.yaml`` (OpenCV-flavoured YAML: ``%YAML:1.0`` header, optional matrix tags)."""
     if not path.is_file():
         raise EurocError(f"EuRoC sensor calibration is missing: {path}")
-    text = "\n".join(l for l in path.read_text().splitlines() if not l.startswith("%"))
+    try:
+        raw = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise EurocError(
+            f"{path} is not a text file (binary data?); restore the sequence's sensor.yaml"
+        ) from None
+    text = "\n".join(l for l in raw.splitlines() if not l.startswith("%"))
     text = text.replace("!!opencv-matrix", "")
     try:
         data = yaml.safe_load(text)

@@ -11,7 +11,7 @@ import torch
 from gsslam.config import MapperConfig
 from gsslam.geometry import make_T, so3_exp
 from gsslam.mapping.mapper import GaussianMapper, MapperError
-from gsslam.mapping.render_run import render_run, save_intrinsics
+from gsslam.run.render import render_run, save_intrinsics
 
 CFG = MapperConfig(max_side=80, iterations=20, window=4, device="cpu", pose_refinement=True)
 

@@ -93,7 +93,7 @@ def test_tracebacks_become_one_line_runtime_failures(monkeypatch, capsys, tmp_pa
     def boom(*args, **kwargs):
         raise ZeroDivisionError("boom")
 
-    monkeypatch.setattr("gsslam.pipeline.run_sequence", boom)
+    monkeypatch.setattr("gsslam.run.sequence.run_sequence", boom)
     code = cli.run_cli(["run", str(seq), "--out", str(tmp_path / "o"), "--no-progress"])
     err = capsys.readouterr().err
     assert code == cli.EXIT_FAILURE and "Traceback" not in err

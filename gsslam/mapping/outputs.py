@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from gsslam.io.atomic import atomic_path
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.types import Frame
 
@@ -84,6 +85,7 @@ def keyframe_panels(mapper: GaussianMapper, out_dir: str | Path, n: int = 4) -> 
         ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
         dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
         p = out_dir / f"keyframe_{idx:06d}.png"
-        cv2.imwrite(str(p), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
+        with atomic_path(p) as tmp:
+            cv2.imwrite(str(tmp), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
         paths.append(p)
     return paths

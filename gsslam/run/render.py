@@ -18,6 +18,7 @@ import yaml
 
 from gsslam.errors import GsslamError
 from gsslam.geometry import invert_T, quat_to_rot
+from gsslam.io.atomic import atomic_path, atomic_write_text
 from gsslam.types import CameraIntrinsics
 
 _log = logging.getLogger(__name__)
@@ -31,8 +32,9 @@ def save_intrinsics(intrinsics: CameraIntrinsics, path: str | Path) -> None:
     """Write ``intrinsics.yaml`` (pinhole, no distortion) for :func:`render_run`."""
     i = intrinsics
     data = {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "width": i.width, "height": i.height}
-    Path(path).write_text(
-        yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v) for k, v in data.items()})
+    atomic_write_text(
+        path,
+        yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v) for k, v in data.items()}),
     )
 
 
@@ -119,7 +121,8 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
             out = render(means, quats, scales, opac, rgb, T_cw, K, intr.width, intr.height)
         color = (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)[..., ::-1]
         dc = depth_colormap(out.depth.numpy(), out.alpha.numpy() > 0.5)
-        cv2.imwrite(str(out_dir / f"render_{i:06d}_{ts[i]:.6f}.png"), np.concatenate([color, dc], axis=1))
+        with atomic_path(out_dir / f"render_{i:06d}_{ts[i]:.6f}.png") as tmp:
+            cv2.imwrite(str(tmp), np.concatenate([color, dc], axis=1))
         count += 1
     _log.info("rendered %d of %d poses (%dx%d) to %s", count, len(poses), intr.width, intr.height, out_dir)
     return count

@@ -93,20 +93,6 @@ def eval_cmd(
         _echo_table(report.table_rows(), title=f"{est} vs {gt} (align={align})")
 
 
-def _check_out_folder(out: Path) -> None:
-    """``--out`` must be a folder or a path that can become one (no file at it or above it)."""
-    if out.exists() and not out.is_dir():
-        raise typer.BadParameter(f"{out} is a file; give a folder for the outputs", param_hint="--out")
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise typer.BadParameter(
-                    f"{parent} is a file, so {out} cannot be a folder; choose another path",
-                    param_hint="--out",
-                )
-            break
-
-
 @app.command("run")
 def run_cmd(
     path: Annotated[Path, typer.Argument(help="Sequence folder (or video file for --dataset images).")],
@@ -120,12 +106,16 @@ def run_cmd(
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="Use only the first N frames.")] = None,
     intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace an older run in OUT (removes only gsslam's own files).")
+    ] = False,
 ) -> None:
-    """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT."""
+    """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT.
+
+    OUT must not hold another run (see --overwrite) and takes one run at a time (a lock file).
+    """
     from gsslam.config import load_config
     from gsslam.run.sequence import run_sequence
-
-    _check_out_folder(out)
 
     cfg = load_config(config, set_ or [], mode=mode)
     ds_kwargs = {}
@@ -151,7 +141,14 @@ def run_cmd(
 
     try:
         result = run_sequence(
-            path, dataset, cfg, out, max_frames=max_frames, progress=callback or False, **ds_kwargs
+            path,
+            dataset,
+            cfg,
+            out,
+            max_frames=max_frames,
+            progress=callback or False,
+            overwrite=overwrite,
+            **ds_kwargs,
         )
     finally:
         for bar in bars:

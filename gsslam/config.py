@@ -185,6 +185,7 @@ class PipelineConfig:
     max_lost_frames: int = 2  # consecutive tracking failures that start a new submap chain
     cross_flow_back: int = 3  # each new keyframe gets flow to keyframes this far back in the previous submap
     flow_points: int = 1000  # correspondences per cross-submap keyframe pair
+    max_time_gap_s: float = 0.5  # a longer gap between frames is an event; mono starts a new chain there
 
 
 @dataclass(frozen=True)
@@ -463,6 +464,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "pipeline.max_lost_frames": _ge(1),
     "pipeline.cross_flow_back": _ge(0),
     "pipeline.flow_points": _ge(1),
+    "pipeline.max_time_gap_s": POS,
 }
 
 

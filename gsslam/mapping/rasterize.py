@@ -24,6 +24,12 @@ _log = logging.getLogger(__name__)
 
 ALPHA_EPS = 1e-6  # depth is divided by alpha only where alpha > this (else 0)
 BACKENDS = ("auto", "torch", "fast", "gsplat")
+_USED: set[str] = set()  # the backends that rendered in this process (for a run's provenance)
+
+
+def backends_used() -> list[str]:
+    """The backends (``torch``, ``fast``, ``gsplat``) that :func:`render` ran so far in this process."""
+    return sorted(_USED)
 
 
 @dataclass
@@ -63,6 +69,7 @@ def render(
     width, height = int(width), int(height)
     proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near)
     if backend == "gsplat" or (backend == "auto" and means.is_cuda and _gsplat_available()):
+        _USED.add("gsplat")
         return _render_gsplat(
             proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near
         )
@@ -78,10 +85,12 @@ def render(
         height,
     )
     if backend == "torch" or (backend in ("auto", "fast") and not _fast_available(means)):
+        _USED.add("torch")
         feat, alpha = composite_reference(*args)
     else:
         from gsslam.mapping.rasterize_cpu import composite_cpu
 
+        _USED.add("fast")
         feat, alpha = composite_cpu(*args)
     color = feat[..., :3]
     if background is not None:

@@ -16,7 +16,10 @@ Per frame (:meth:`Pipeline.process`):
 
 Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the current chain of
 submaps and starts a new one at the current frame (its own graph; its world placement is the
-last tracked pose). Outputs are written by :mod:`gsslam.run` (the pipeline writes no files).
+last tracked pose). A time gap longer than ``cfg.pipeline.max_time_gap_s`` is a ``gap`` event; a
+monocular run also starts a new chain there (it cannot bridge the gap), an RGB-D run lets tracking
+decide. Chains are not re-joined yet: the runner reports ATE per chain. Outputs are written by
+:mod:`gsslam.run` (the pipeline writes no files).
 """
 
 from __future__ import annotations
@@ -109,7 +112,16 @@ class Pipeline:
         self.n_frames += 0 if retry else 1
         if self.monocular and frame.depth is not None:
             frame = dataclasses.replace(frame, depth=None)  # a monocular run never sees sensor depth
+        gap = self._time_gap(frame) if not retry else None
         self.timestamps[frame.index] = frame.timestamp
+        if gap is not None:
+            self.events.append(Event(frame.index, "gap", f"{gap:.2f} s without frames before this one"))
+            log.warning("frame %d: %.2f s without frames before it", frame.index, gap)
+            if self.monocular and self.window:  # mono cannot bridge a gap: its scale and motion are lost
+                self.close_chain()
+                self.events.append(Event(frame.index, "new_chain", "after a time gap"))
+                self._start_chain(frame)
+                return
         if not self.window:
             self._start_chain(frame)
             return
@@ -148,6 +160,13 @@ class Pipeline:
         else:
             self.relative[frame.index] = (matches.ref_index, T_ref_cur)
         self.last_good = frame
+
+    def _time_gap(self, frame: Frame) -> float | None:
+        """Seconds since the previous frame when more than ``pipeline.max_time_gap_s``, else None."""
+        if not self.timestamps:
+            return None
+        dt = frame.timestamp - max(self.timestamps.values())
+        return dt if dt > self.cfg.pipeline.max_time_gap_s else None
 
     def _tracking_failure(self, frame: Frame, reason: str) -> None:
         self.events.append(Event(frame.index, reason, f"tracking failed ({reason})"))
@@ -320,6 +339,18 @@ class Pipeline:
         # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
         out.update(interpolate_poses(out, [m.cur_index for m, _ in self.pending], self.timestamps))
         return dict(sorted(out.items()))
+
+    def frame_chains(self) -> dict[int, int]:
+        """The chain of every frame that can have a pose: its keyframe's chain (or the tracked chain)."""
+        out = {idx: kf.chain for idx, kf in self.keyframes.items()}
+        for idx, (ref, _T) in self.relative.items():
+            if ref in self.keyframes:
+                out[idx] = self.keyframes[ref].chain
+        for m, cid in self.pending:
+            out[m.cur_index] = cid
+        if self.window and self.chains:  # the origin of a chain that has no submap yet
+            out.setdefault(self.window[0].index, len(self.chains) - 1)
+        return out
 
     def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
         """Scale a relative pose measured in the keyframe's submap units to world units."""

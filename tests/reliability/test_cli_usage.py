@@ -45,16 +45,6 @@ def test_max_frames_must_be_positive(tmp_path, n):
     assert not (tmp_path / "out").exists()
 
 
-def test_out_that_is_a_file_or_under_a_file(tmp_path):
-    f = tmp_path / "notes.txt"
-    f.write_text("my notes\n")
-    assert_error(gsslam("run", BUNDLED_TUM, "--out", f, *FAST), "--out", f"{f} is a file")
-    assert_error(
-        gsslam("run", BUNDLED_TUM, "--out", f / "run", *FAST), "--out", f"{f} is a file", "cannot be"
-    )
-    assert f.read_text() == "my notes\n"
-
-
 def test_usage_errors(tmp_path):
     assert_error(gsslam("bench", "graph", "--sizes", "a,b"), "--sizes", "comma-separated integers")
     assert_error(gsslam("bench", "loop", "--sizes", "10,-1"), "--sizes", "positive")

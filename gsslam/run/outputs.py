@@ -49,7 +49,7 @@ def ate_metrics(gt: Trajectory | None, est: Trajectory, align: str) -> tuple[dic
         return None, None
     try:
         res, assoc = compute_ate(gt, est, align=align)
-    except GsslamError as e:
+    except (GsslamError, np.linalg.LinAlgError, ValueError) as e:  # numbers must never lose the files
         log.warning("no ATE: %s", e)
         return None, None
     return {

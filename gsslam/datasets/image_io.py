@@ -85,13 +85,14 @@ def check_image_files(
                 "the camera's size: resize or remove the odd files (or fix the intrinsics)"
             )
         if depth and mode not in _DEEP_MODES:
-            raise ImageReadError(_depth_bits_message(path, mode))
+            kind = "8-bit" if mode in ("L", "P", "1", "LA") else f"a colour image ({mode})"
+            raise ImageReadError(_depth_bits_message(path, kind))
     return ref if ref is not None else (0, 0)
 
 
 def _depth_bits_message(path: Path, kind: str) -> str:
     return (
-        f"depth file {path} is {kind} (8-bit or colour); depth must be a single-channel 16-bit PNG "
+        f"depth file {path} is {kind}; depth must be a single-channel 16-bit PNG "
         "(raw value / scale = metres): an 8-bit depth map has lost its units; re-export the depth as 16-bit"
     )
 

@@ -8,9 +8,9 @@ Every file is written atomically (:mod:`gsslam.io.atomic`). ``metrics.json`` car
 written; the slow map outputs are not yet) and ``"complete"``. So a second Ctrl-C while the map is
 being written, or a kill, never loses the files already complete.
 
-ATE is one number only when the run is one chain. After tracking loss the chains are not joined in
-one world frame, so ``"ate"`` is ``null`` and ``"ate_per_chain"`` gives one ATE per chain (each
-aligned on its own): never a silently mixed number.
+ATE is one number only when every chain is in one world frame: a single chain, or later chains
+re-localized against an earlier one (RGB-D, ``Chain.in_world``). Otherwise ``"ate"`` is ``null`` and
+``"ate_per_chain"`` gives one ATE per chain (each aligned on its own): never a silently mixed number.
 """
 
 from __future__ import annotations
@@ -73,6 +73,11 @@ def _json_default(v: Any) -> Any:
     raise TypeError(f"{type(v).__name__} is not JSON serializable")
 
 
+def one_world(pipe: Pipeline) -> bool:
+    """True when every chain's placement in the world is verified (one chain, or re-localized ones)."""
+    return all(c.in_world for c in pipe.chains)
+
+
 def ate_per_chain(pipe: Pipeline, gt: Trajectory | None, poses: dict[int, np.ndarray], align: str) -> list:
     """One ATE record per chain (``None`` where a chain has fewer than 3 poses with ground truth)."""
     chain_of = pipe.frame_chains()
@@ -107,7 +112,7 @@ def write_outputs(
     write_tum(kf_traj, out / "keyframes.tum")
     align = "sim3" if pipe.monocular else "se3"
     gt = ds.ground_truth()
-    joined = len(pipe.chains) <= 1  # several chains are not in one world frame: no single ATE
+    joined = one_world(pipe)  # chains not in one world frame: no single ATE
     ate, pair = ate_metrics(gt, traj, align) if joined else (None, None)
     ate_kf, _ = ate_metrics(gt, kf_traj, align) if joined else (None, None)
     ate_bb, _ = (
@@ -123,6 +128,7 @@ def write_outputs(
         "keyframes": len(kf_traj),
         "submaps": sum(len(c.encodings) for c in pipe.chains),
         "chains": len(pipe.chains),
+        "chains_in_world": sum(c.in_world for c in pipe.chains),
         "flow_factors": pipe.n_flow_factors,
         "wall_time_s": wall,
         "fps": done / wall if wall > 0 else 0.0,
@@ -203,7 +209,7 @@ def write_map_outputs(
     ev.pop("per_frame_psnr", None)
     refined = stage.refined_keyframe_poses
     # the map after the joint refinement, seen from its own refined keyframe poses (one chain only)
-    if refined and kfs and len(pipe.chains) <= 1:
+    if refined and kfs and one_world(pipe):
         ev_r = mapper.evaluate([ds[i] for i in kfs], {i: refined[i] for i in kfs if i in refined})
         ev["psnr_keyframes_refined_poses"] = ev_r["psnr_keyframes"]
         ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]

@@ -86,8 +86,10 @@ class RunResult:
                 rows.append(
                     (label, f"{100 * m[key]['rmse_m']:.2f} cm ({m[key]['align']}, {m[key]['pairs']} poses)")
                 )
-        if m.get("chains", 0) > 1:
+        if m.get("ate_per_chain"):
             rows.append(("chains", "not joined in one world frame: ATE per chain, no overall number"))
+        elif m.get("chains", 0) > 1:
+            rows.append(("chains", f"{m['chains']} chains re-localized into one world frame"))
         if m.get("interrupted"):
             rows.append(("interrupted", "yes: outputs hold the poses estimated so far"))
         rows.append(("outputs", str(self.out)))

@@ -186,7 +186,7 @@ class Pipeline:
         from gsslam.graph.submap_graph import SubmapGraph
 
         T = self.current_pose_estimate()
-        self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T))
+        self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T, in_world=not self.chains))
         self.window = [frame]
         self.prev_frames = []
         self.keyframe_order.append(frame.index)
@@ -243,6 +243,7 @@ class Pipeline:
             )
             chain.graph.update()
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
+            self._relocalize(chain, cid, sid, frames[-1].index)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
@@ -262,6 +263,19 @@ class Pipeline:
             self._map_submap(chain, cid, sid, enc, frames, added, flows)
         self.prev_frames = frames
         self.window = [frames[-1]]
+
+    def _relocalize(self, chain: Chain, cid: int, sid: int, frame_index: int) -> None:
+        """A chain not yet in the world frame: try to place it against an earlier chain's submaps."""
+        if chain.in_world:
+            return
+        T = self.loop_stage.relocalize(self.chains, cid, sid)
+        if T is None:
+            return
+        chain.T_world_chain = T
+        chain.in_world = True
+        self.events.append(Event(frame_index, "rejoined", f"chain {cid} placed in the world frame"))
+        if self.map_stage is not None and sid > 0:  # its earlier submaps are in the map already
+            self.map_stage.follow_graph(self.chains)
 
     def _map_submap(self, chain, cid, sid, enc, frames, added, flows) -> None:
         """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""

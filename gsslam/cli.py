@@ -295,6 +295,9 @@ def run_cli(argv: list[str] | None = None) -> int:
         return rv if isinstance(rv, int) else EXIT_OK
     except GsslamError as e:
         _log.debug("gsslam error", exc_info=True)
+        if received:  # the interruption surfaced as another error (e.g. inside an import)
+            typer.echo("interrupted", err=True)
+            return EXIT_SIGTERM
         return _fail(str(e), EXIT_USAGE)
     except click.UsageError as e:
         if not e.format_message():  # no arguments at all: the help was shown
@@ -313,6 +316,9 @@ def run_cli(argv: list[str] | None = None) -> int:
         return _fail(f"{e} (rerun with -v for the traceback)", EXIT_FAILURE)
     except Exception as e:  # a bug or the machine: one line, the traceback with -v
         _log.debug("unexpected error", exc_info=True)
+        if received:  # SIGTERM raised inside an extension's import shows up as ImportError
+            typer.echo("interrupted", err=True)
+            return EXIT_SIGTERM
         return _fail(
             f"unexpected {type(e).__name__}: {e} (a bug? rerun with -v for the traceback)", EXIT_FAILURE
         )

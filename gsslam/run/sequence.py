@@ -143,10 +143,10 @@ def run_dataset(
     out = Path(out)
     prov = provenance if provenance is not None else _default_provenance(cfg, ds)
     with RunFolder(out, overwrite=overwrite):
+        pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
         save_config(cfg, out / "config.yaml")
         write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})
         n = len(ds) if max_frames is None else min(len(ds), max_frames)
-        pipe = Pipeline(cfg, ds.intrinsics)
         result = RunResult(out)
         t0 = time.perf_counter()
         done, interrupted = 0, True

@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import load_intrinsics_yaml, normalize_index, read_yaml_mapping
 from gsslam.datasets.image_io import (
     IMAGE_SUFFIXES,
@@ -91,7 +91,6 @@ def _yaml_fps(path: Path) -> float | None:
     return value
 
 
-@register_dataset("images")
 class ImageSequenceDataset:
     """Images of a folder or frames of a video; see the module docstring for the kwargs."""
 

@@ -1,8 +1,8 @@
 """One evaluation of an estimated trajectory against ground truth: association, alignment, ATE, RPE.
 
-:func:`evaluate` works on :class:`gsslam.types.Trajectory` values, :func:`evaluate_files` on files
-(it backs ``gsslam eval``). The result is an :class:`EvalReport` with ``to_dict()`` (JSON-able) and
-``table_rows()`` (for the CLI table).
+:func:`evaluate` works on :class:`gsslam.types.Trajectory` values (pure: no files;
+:func:`gsslam.run.evaluate.evaluate_files` reads them for ``gsslam eval``). The result is an
+:class:`EvalReport` with ``to_dict()`` (JSON-able) and ``table_rows()`` (for the CLI table).
 """
 
 from __future__ import annotations

@@ -74,6 +74,12 @@ class RunFolder:
         previous = self.own_entries()
         if not previous:
             return
+        for p in previous:  # generic names: never replace or remove a file gsslam did not write
+            if not _written_by_gsslam(p):
+                raise RunFolderError(
+                    f"{p} is not a file gsslam wrote, and a run would replace it; "
+                    "choose another --out (or move the file)"
+                )
         names = ", ".join(p.name for p in previous[:4]) + (", ..." if len(previous) > 4 else "")
         if not self.overwrite:
             raise RunFolderError(
@@ -139,6 +145,25 @@ class RunFolder:
 
     def __exit__(self, *exc) -> None:
         self._release()
+
+
+def _written_by_gsslam(path: Path) -> bool:
+    """``config.yaml`` and ``metrics.json`` are common names: check that gsslam wrote them."""
+    import json
+
+    if path.name not in ("config.yaml", "metrics.json"):
+        return True
+    try:
+        if path.name == "metrics.json":
+            data = json.loads(path.read_text(encoding="utf-8"))
+            return isinstance(data, dict) and ("status" in data or "frames_posed" in data)
+        from gsslam.config import Config, read_config_file
+
+        data = read_config_file(path)
+        known = {f for f in Config.__dataclass_fields__}
+        return bool(data) and set(data) <= known and "mode" in data
+    except (GsslamError, OSError, ValueError):
+        return False
 
 
 def _read_pid(fd: int) -> int | None:

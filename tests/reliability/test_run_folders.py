@@ -32,10 +32,14 @@ def _metrics(out):
 
 def _old_run(out):
     """The files an older run with a map left behind, and a file of the user's."""
+    from gsslam.config import Config, save_config
+
     (out / "renders").mkdir(parents=True)
     (out / "renders" / "kf_0.png").write_bytes(b"old panel")
-    for name in ("map.ply", "intrinsics.yaml", "config.yaml", "metrics.json", "trajectory.tum"):
+    for name in ("map.ply", "intrinsics.yaml", "trajectory.tum"):
         (out / name).write_text(f"old {name}\n")
+    save_config(Config(), out / "config.yaml")
+    (out / "metrics.json").write_text(json.dumps({"frames_posed": 40, "mapper": {"psnr_keyframes": 25.0}}))
     (out / ".trajectory.tum.tmp-1-abc.tum").write_text("half")  # a killed run's leftover
     (out / "notes.txt").write_text("the user's notes\n")
 
@@ -64,6 +68,18 @@ def test_a_folder_holding_another_run_is_refused_then_overwritten(tmp_path):
     assert prov["rasterizer"] is None  # no map, no rasterizer
     # the older run's map is gone, so `gsslam render` cannot render it along the new trajectory
     assert_error(gsslam("render", out, "--out", tmp_path / "r"), "map.ply", "not found")
+
+
+def test_files_gsslam_did_not_write_are_never_replaced(tmp_path):
+    seq = teddy_copy(tmp_path, n=4)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "config.yaml").write_text("camera: my own settings\n")
+    before = snapshot(out)
+    for extra in ((), ("--overwrite",)):
+        r = gsslam("run", seq, "--out", out, *FAST, *extra)
+        assert_error(r, f"{out / 'config.yaml'} is not a file gsslam wrote", "choose another --out")
+        assert snapshot(out) == before
 
 
 def test_a_second_run_into_a_live_folder_is_refused(tmp_path):

@@ -1,0 +1,1 @@
+"""The runner: run a dataset, write its outputs; batches of runs (:mod:`gsslam.run.batch`)."""

@@ -234,8 +234,9 @@ def run_batch(
         raise BatchError(f"--jobs must be >= 1, got {opts.jobs}")
     out = Path(opts.out)
     (out / "runs").mkdir(parents=True, exist_ok=True)
-    if manifest.source is not None:
-        shutil.copyfile(manifest.source, out / "manifest.yaml")
+    copy = out / "manifest.yaml"
+    if manifest.source is not None and not (copy.exists() and copy.samefile(manifest.source)):
+        shutil.copyfile(manifest.source, copy)
     specs = plan(manifest, opts)
     todo, reused = [], []
     for spec in specs:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -127,6 +128,12 @@ def markdown(rows: list[dict], title: str = "batch") -> str:
     return "\n".join(parts) + "\n"
 
 
+def _csv_value(v: Any) -> Any:
+    if v is None:
+        return ""
+    return json.dumps(v) if isinstance(v, dict | list | tuple) else v
+
+
 def csv_text(rows: list[dict]) -> str:
     """Every key of every row (raw numbers, SI units), one line per run."""
     keys = list(dict.fromkeys(k for r in rows for k in r))
@@ -134,7 +141,7 @@ def csv_text(rows: list[dict]) -> str:
     w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: "" if r.get(k) is None else r[k] for k in keys})
+        w.writerow({k: _csv_value(r.get(k)) for k in keys})
     return buf.getvalue()
 
 

@@ -198,7 +198,10 @@ def _run_ray(todo: list[tuple[RunSpec, Path]], opts: BatchOptions, on_done: Call
     try:
         pending = {remote.remote(spec, str(d), opts.threads_per_run): (spec, d) for spec, d in todo}
         while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
+            # a timeout lets Python see Ctrl-C between waits (a blocking wait would swallow it)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+            if not ready:
+                continue
             spec, run_dir = pending.pop(ready[0])
             try:
                 rec = ray.get(ready[0])

@@ -219,11 +219,14 @@ def bench_accuracy(
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,
     max_frames: Annotated[Optional[int], typer.Option(help="Cap every sequence at N frames.")] = None,
+    data_root: Annotated[
+        Optional[list[Path]], typer.Option(help="Extra folder to find the suite's data in (repeatable).")
+    ] = None,
 ) -> None:
     """Accuracy table of a built-in suite: `gsslam batch SUITE` (see docs/evaluation.md)."""
     from gsslam.run.manifest import suite_path
 
-    _run_batch(str(suite_path(suite)), out, jobs, address, max_frames, None)
+    _run_batch(str(suite_path(suite)), out, jobs, address, max_frames, data_root)
 
 
 def _bench(name: str, **kwargs) -> None:

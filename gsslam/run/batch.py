@@ -98,7 +98,7 @@ def execute_run(spec: RunSpec, run_dir: str, threads: int | None = None) -> dict
     out = Path(run_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / RESULT_FILE).unlink(missing_ok=True)
-    started = time.time()
+    started, cpu0 = time.time(), time.process_time()
     base = {
         **spec.to_dict(),
         "fingerprint": spec.fingerprint(),
@@ -131,6 +131,9 @@ def execute_run(spec: RunSpec, run_dir: str, threads: int | None = None) -> dict
             "traceback": traceback.format_exc(),
         }
     record["started"], record["finished"] = started, time.time()
+    record["cpu_s"] = (
+        time.process_time() - cpu0
+    )  # all threads of this process: wall time on a busy machine lies
     _write_json(out / RESULT_FILE, record)
     _write_json(out / STATUS_FILE, {**status, "state": record["status"], "finished": record["finished"]})
     return record

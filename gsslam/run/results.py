@@ -66,6 +66,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("fps", "FPS", _f(".2f")),
     Column("peak_rss_mb", "RSS MB", _f(".0f")),
     Column("wall_s", "wall s", _f(".1f")),
+    Column("cpu_s", "CPU s", _f(".1f")),
     Column("backend", "raster", _s, numeric=False),
 )
 MEAN_KEYS = tuple(c.key for c in COLUMNS if c.numeric and c.key != "frames")

@@ -178,7 +178,7 @@ def batch_cmd(
         Optional[str], typer.Argument(help="Manifest YAML, or a built-in suite name (quick, standard, long).")
     ] = None,
     jobs: Annotated[
-        int, typer.Option(help="Runs at once (> 1 runs on a local Ray; needs gsslam[batch]).")
+        int, typer.Option(help="Runs at once (> 1 runs on a local Ray; needs gsslam\\[batch]).")
     ] = 1,
     address: Annotated[
         Optional[str],
@@ -215,7 +215,7 @@ def batch_cmd(
 @bench_app.command("accuracy")
 def bench_accuracy(
     suite: Annotated[str, typer.Option(help="Built-in suite: quick | standard | long.")] = "quick",
-    jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam[batch]).")] = 1,
+    jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam\\[batch]).")] = 1,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,
     max_frames: Annotated[Optional[int], typer.Option(help="Cap every sequence at N frames.")] = None,

@@ -144,7 +144,7 @@ def _run_and_evaluate(spec: RunSpec, out: Path, status: dict) -> dict:
     from gsslam.datasets.base import open_dataset
     from gsslam.io.trajectory import write_tum
     from gsslam.run.run_metrics import evaluate_run
-    from gsslam.run_outputs import run_sequence  # the one place the batch calls the runner
+    from gsslam.run.sequence import run_sequence  # the one place the batch calls the runner
 
     s = spec.sequence
     cfg = load_config(None, list(spec.variant.overrides), mode=s.mode)

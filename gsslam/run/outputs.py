@@ -1,0 +1,175 @@
+"""The files of a run: trajectories, metrics (ATE, counts, timings, events) and the map's outputs.
+
+``trajectory.tum`` (every frame that has a pose, dataset timestamps), ``keyframes.tum``,
+``metrics.json``, ``trajectory.png``; with the map: ``map.ply``, ``intrinsics.yaml`` and ``renders/``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import resource
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gsslam.errors import GsslamError
+from gsslam.eval.ate import compute_ate
+from gsslam.io.trajectory import write_tum
+from gsslam.slam.pipeline import Pipeline
+from gsslam.types import Trajectory
+
+log = logging.getLogger(__name__)
+
+
+def trajectory_of(pipe: Pipeline, poses: dict[int, np.ndarray]) -> Trajectory:
+    """The frames of ``poses`` that have a timestamp, in index order, as a trajectory."""
+    idx = sorted(i for i in poses if i in pipe.timestamps)
+    if not idx:
+        return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+    return Trajectory(np.array([pipe.timestamps[i] for i in idx]), np.stack([poses[i] for i in idx]))
+
+
+def ate_metrics(gt: Trajectory | None, est: Trajectory, align: str) -> tuple[dict | None, Any]:
+    """ATE of ``est`` against ``gt`` as the metrics dict (and the result and association), or ``None``."""
+    if gt is None or len(est) < 3:
+        return None, None
+    try:
+        res, assoc = compute_ate(gt, est, align=align)
+    except GsslamError as e:
+        log.warning("no ATE: %s", e)
+        return None, None
+    return {
+        "rmse_m": res.stats.rmse,
+        "mean_m": res.stats.mean,
+        "median_m": res.stats.median,
+        "max_m": float(np.max(res.errors)),
+        "pairs": len(assoc),
+        "align": align,
+    }, (res, assoc)
+
+
+def write_outputs(
+    pipe: Pipeline,
+    ds,
+    out: Path,
+    wall: float,
+    done: int,
+    interrupted: bool,
+    before_batch: dict[int, np.ndarray] | None = None,
+) -> dict:
+    """Write the trajectories, ``metrics.json``, the plot and the map outputs; returns the metrics."""
+    try:
+        poses = pipe.frame_poses()
+        kf_poses = pipe.keyframe_poses()
+    except Exception as e:  # an interrupted graph may not answer; keep what the files need
+        log.warning("could not read poses after interruption: %s", e)
+        poses, kf_poses = {}, {}
+    traj, kf_traj = trajectory_of(pipe, poses), trajectory_of(pipe, kf_poses)
+    write_tum(traj, out / "trajectory.tum")
+    write_tum(kf_traj, out / "keyframes.tum")
+    align = "sim3" if pipe.monocular else "se3"
+    gt = ds.ground_truth()
+    ate, pair = ate_metrics(gt, traj, align)
+    ate_kf, _ = ate_metrics(gt, kf_traj, align)
+    ate_bb, _ = ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch else (None, None)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    peak_mb = peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+    metrics = {
+        "dataset": getattr(ds, "name", type(ds).__name__),
+        "mode": pipe.cfg.mode,
+        "frames": done,
+        "frames_posed": len(traj),
+        "keyframes": len(kf_traj),
+        "submaps": sum(len(c.encodings) for c in pipe.chains),
+        "chains": len(pipe.chains),
+        "flow_factors": pipe.n_flow_factors,
+        "wall_time_s": wall,
+        "fps": done / wall if wall > 0 else 0.0,
+        "peak_rss_mb": peak_mb,
+        "ate": ate,
+        "ate_keyframes": ate_kf,
+        "ate_before_batch": ate_bb,
+        "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
+        "interrupted": interrupted,
+        "mapper": None,
+        "loop_closure": pipe.loop_stage.metrics(),
+    }
+    if pipe.map_stage is not None:
+        try:
+            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done)
+        except Exception as e:  # the map must never lose a run's trajectory and numbers
+            log.warning("map outputs failed: %s", e)
+            metrics["mapper"] = {"error": str(e)}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    if pair is not None:
+        try:
+            from gsslam.viz.plots import plot_trajectory
+
+            res, assoc = pair
+            est_xyz = res.alignment.apply_positions(traj.positions[assoc.est_indices])
+            plot_trajectory(
+                out / "trajectory.png",
+                gt.timestamps[assoc.gt_indices],
+                gt.positions[assoc.gt_indices],
+                est_xyz,
+                title=f"ATE {100 * ate['rmse_m']:.2f} cm ({align})",
+            )
+        except Exception as e:  # a plot must never lose a run's numbers
+            log.warning("trajectory plot failed: %s", e)
+    return metrics
+
+
+def write_map_outputs(
+    pipe: Pipeline,
+    ds,
+    out: Path,
+    poses: dict[int, np.ndarray],
+    done: int,
+    max_held_out: int = 40,
+    panels: int = 4,
+) -> dict:
+    """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
+
+    PSNR / SSIM at the mapper resolution on every mapper keyframe and on up to ``max_held_out``
+    non-keyframes spread over the run (held out: never seen by the mapper), with their final poses.
+    """
+    from gsslam.run.render import save_intrinsics  # torch: only when there is a map
+
+    stage = pipe.map_stage
+    mapper = stage.mapper
+    t0 = time.perf_counter()
+    save_intrinsics(pipe.intrinsics, out / "intrinsics.yaml")
+    ply_bytes = mapper.save_ply(out / "map.ply")
+    mapper.render_keyframe_panels(out / "renders", panels)
+    kfs = [i for i in mapper.keyframe_indices if i in poses]
+    others = [i for i in sorted(poses) if i < done and i not in set(mapper.keyframe_indices)]
+    if len(others) > max_held_out:
+        others = [others[int(k)] for k in np.linspace(0, len(others) - 1, max_held_out)]
+    frames = [ds[i] for i in sorted(set(kfs) | set(others))]
+    ev = mapper.evaluate(frames, poses) if frames else {}
+    ev.pop("per_frame_psnr", None)
+    refined = stage.refined_keyframe_poses
+    if refined and kfs:  # the map after the joint refinement, seen from its own refined keyframe poses
+        ev_r = mapper.evaluate([ds[i] for i in kfs], {i: refined[i] for i in kfs if i in refined})
+        ev["psnr_keyframes_refined_poses"] = ev_r["psnr_keyframes"]
+        ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]
+        gt = ds.ground_truth()
+        align = "sim3" if pipe.monocular else "se3"
+        ev["ate_keyframes_refined_poses"], _ = ate_metrics(gt, trajectory_of(pipe, refined), align)
+    empty = mapper.num_gaussians == 0
+    if empty:
+        log.warning(
+            "the map is empty: no keyframe had depth with confidence >= mapper.min_confidence "
+            "(a camera at rest or only rotating observes none); its PSNR is that of a blank render"
+        )
+    return {
+        **stage.metrics(),
+        **ev,
+        "empty": empty,
+        "ply_mb": ply_bytes / 1e6,
+        "outputs_seconds": time.perf_counter() - t0,
+    }

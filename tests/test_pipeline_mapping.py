@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from gsslam.config import load_config
 from gsslam.datasets.base import open_dataset
@@ -13,7 +14,7 @@ from gsslam.io.ply import read_ply
 from gsslam.io.trajectory import read_tum
 from gsslam.run.sequence import run_dataset
 
-torch = pytest.importorskip("torch")
+pytestmark = pytest.mark.slow  # end-to-end runs
 
 # small map: 80x60, few steps (CI time); PSNR bounds below were measured at these settings
 SMALL = [

@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from gsslam.datasets.base import DatasetError
-from gsslam.geometry import make_T, quat_to_rot
+from gsslam.io.trajectory import TrajectoryIOError, read_tum
 from gsslam.types import CameraIntrinsics, Trajectory
 
 
@@ -85,19 +85,18 @@ def associate_nearest(query: np.ndarray, ref: np.ndarray, max_dt: float) -> np.n
     return out
 
 
-def pose_from_tum(values: np.ndarray) -> np.ndarray:  # [7] tx ty tz qx qy qz qw -> [4, 4]
-    return make_T(quat_to_rot(values[3:7]), values[:3])
-
-
 def read_tum_trajectory(path: Path, what: str = "trajectory") -> Trajectory:
-    """A TUM-format file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments) as a Trajectory."""
-    rows = read_rows(path, what=what)
-    if not rows:
-        raise DatasetFormatError(f"{what} {path} has no poses")
-    vals = np.stack([parse_floats(f, 8, path, n) for n, f in rows])
-    check_increasing(vals[:, 0], path, [n for n, _ in rows])
-    poses = np.stack([pose_from_tum(v[1:]) for v in vals])
-    return Trajectory(vals[:, 0], poses, meta={"source": str(path)})
+    """A TUM-format file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments) as a Trajectory, read by
+    the one TUM parser (``gsslam.io.trajectory.read_tum``); timestamps must be strictly increasing."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetFormatError(f"{what} is missing: {path}")
+    try:
+        traj = read_tum(path)
+    except TrajectoryIOError as e:
+        raise DatasetFormatError(f"{what}: {e}") from None
+    check_increasing(traj.timestamps, path)
+    return Trajectory(traj.timestamps, traj.poses, meta={"source": str(path)})
 
 
 class FrameGroundTruth:

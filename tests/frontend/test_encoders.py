@@ -3,21 +3,16 @@ and degenerate inputs (pure rotation, black, repeated frames) that must be flagg
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from synthetic_scene import PlaneScene, forward_motion, pure_rotation  # noqa: E402
-from tum_frames import load_tum  # noqa: E402
-
-from gsslam.config import EncoderConfig, FlowConfig  # noqa: E402
-from gsslam.frontend.encoder import EncoderError, make_encoder  # noqa: E402
-from gsslam.frontend.flow import make_flow_estimator  # noqa: E402
-from gsslam.frontend.local_accuracy import local_pose_errors  # noqa: E402
-from gsslam.geometry import so3_log  # noqa: E402
+from gsslam.config import EncoderConfig, FlowConfig
+from gsslam.frontend.encoder import EncoderError, make_encoder
+from gsslam.frontend.flow import make_flow_estimator
+from gsslam.frontend.local_accuracy import local_pose_errors
+from gsslam.geometry import so3_log
+from helpers.plane_scene import PlaneScene, forward_motion, pure_rotation
+from helpers.tum import load_tum
 
 # Keyframes chosen by the default flow keyframe rule on the bundled teddy frames 5..59
 TEDDY_SUBMAPS = [[5, 8, 11, 14, 17, 21, 24], [24, 30, 32, 38, 40, 43, 46]]

@@ -42,7 +42,7 @@ from gsslam.mapping.keyframes import (
     resolve_device,
     torch_threads,
 )
-from gsslam.mapping.rasterize import RenderOutput, render
+from gsslam.mapping.rasterize import RenderOutput, render, resolve_backend
 from gsslam.types import CameraIntrinsics, Frame
 
 __all__ = ["GaussianMapper", "MapperError", "torch_threads"]
@@ -58,6 +58,8 @@ class GaussianMapper:
             raise MapperError(f"mapper.revisit_fraction must lie in [0, 1], got {cfg.revisit_fraction}")
         self.cfg = cfg
         self.device = resolve_device(cfg.device)
+        # "c" | "torch" | "gsplat": what every render of this mapper uses (recorded in metrics.json)
+        self.rasterizer_backend = resolve_backend(cfg.rasterizer, self.device)
         self.full_intrinsics = intrinsics
         factor = min(1.0, cfg.max_side / max(intrinsics.width, intrinsics.height))
         self.intrinsics = intrinsics.scaled(factor)
@@ -115,6 +117,7 @@ class GaussianMapper:
             self.K,
             self.intrinsics.width,
             self.intrinsics.height,
+            backend=self.rasterizer_backend,
         )
 
     def render_pose(self, T_world_cam: np.ndarray) -> RenderOutput:

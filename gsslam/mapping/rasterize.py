@@ -68,6 +68,7 @@ def resolve_backend(requested: str, device: torch.device | str) -> str:
     if reason is None:
         return "c"
     if requested == "auto":
+        _warn_fallback(reason)
         return "torch"
     raise RasterizerUnavailableError(
         f"the compiled C rasterizer is unavailable: {reason}. Fix: reinstall with a C compiler present "
@@ -134,6 +135,11 @@ def render(
         raise RasterizerUnavailableError(
             f"the C rasterizer takes float32/float64 CPU tensors, got {means.dtype} on {means.device}"
         )
+    if backend == "auto" and not means.is_cuda and not _c_available(means):
+        from gsslam.mapping import rasterize_cpu
+
+        if rasterize_cpu.unavailable_reason() is not None:
+            _warn_fallback(rasterize_cpu.unavailable_reason())
     if backend == "torch" or (backend == "auto" and not _c_available(means)):
         feat, alpha = composite_reference(*args)
     else:
@@ -218,6 +224,21 @@ def _gsplat_available() -> bool:
     except ImportError:
         return False
     return True
+
+
+_warned = False
+
+
+def _warn_fallback(reason: str) -> None:
+    """One WARNING per process when ``auto`` cannot use the compiled kernel on the CPU."""
+    global _warned
+    if not _warned:
+        _warned = True
+        _log.warning(
+            "compiled C rasterizer unavailable (%s); using the slower pure-torch reference "
+            "(same results; mapper.rasterizer=c makes this an error)",
+            reason,
+        )
 
 
 def _c_available(means: Tensor) -> bool:

@@ -14,7 +14,7 @@ Where the library comes from (:mod:`gsslam.mapping.rasterize_build` holds the re
    ``<tmp>/gsslam-<uid>``), keyed by the source hash; a folder or file another user could write is
    never loaded from;
 3. else :func:`available` is False: ``render(backend="auto")`` uses the pure-torch reference (one
-   warning) and ``backend="c"`` raises, with :func:`unavailable_reason` in the message.
+   warning) and ``backend="c"`` raises; both say :func:`unavailable_reason`.
 
 The maths and the rules are those of :func:`gsslam.mapping.rasterize_reference.composite_reference`;
 tests compare values and gradients of the two.
@@ -120,7 +120,7 @@ def _load() -> ctypes.CDLL | None:
     except (OSError, RuntimeError, subprocess.CalledProcessError) as e:
         detail = (getattr(e, "stderr", "") or "").strip()[:500]
         _failure = f"{e} {detail}".strip()
-        _log.warning("compiled CPU rasterizer unavailable (%s); using the slower torch reference", _failure)
+        _log.debug("compiled CPU rasterizer unavailable: %s", _failure)  # callers warn or raise
     return _lib
 
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 from test_rasterize_reference import intrinsics, random_scene, small_pose
 
-from gsslam.mapping import rasterize_cpu
+from gsslam.mapping import rasterize, rasterize_cpu
 from gsslam.mapping.rasterize import RasterizerUnavailableError, render
 
 pytestmark = pytest.mark.skipif(
@@ -90,6 +90,7 @@ def _reset_loader(monkeypatch):
 
 def test_without_a_compiler_auto_falls_back_to_the_reference_and_c_raises(monkeypatch, tmp_path, caplog):
     _reset_loader(monkeypatch)
+    monkeypatch.setattr(rasterize, "_warned", False)
     monkeypatch.setattr(rasterize_cpu, "_compiler", lambda: None)
     monkeypatch.setenv("GSSLAM_CACHE_DIR", str(tmp_path))  # empty cache: a build would be needed
     w, h = 16, 12
@@ -99,7 +100,7 @@ def test_without_a_compiler_auto_falls_back_to_the_reference_and_c_raises(monkey
     render(*scene, T, K, w, h, backend="auto")
     assert not rasterize_cpu.available(scene[0])
     warnings = [r for r in caplog.records if r.levelname == "WARNING"]
-    assert len(warnings) == 1 and "torch reference" in warnings[0].getMessage()
+    assert len(warnings) == 1 and "pure-torch reference" in warnings[0].getMessage()
     ref = render(*scene, T, K, w, h, backend="torch")
     torch.testing.assert_close(out.color, ref.color, rtol=0, atol=0)
     with pytest.raises(RasterizerUnavailableError, match="no C compiler"):

@@ -128,6 +128,39 @@ def run_cmd(
     _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
 
 
+DEMO_SEQUENCE = "data/rgbd_dataset_freiburg3_teddy_60"  # in a clone of gsslam
+
+
+@app.command("demo")
+def demo_cmd(
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
+    data: Annotated[
+        Optional[Path], typer.Option(help=f"TUM sequence (default: {DEMO_SEQUENCE} of the clone).")
+    ] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
+    ] = None,
+    max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+) -> None:
+    """RGB-D SLAM on the bundled TUM fr3/teddy frames, then ATE/RPE against its ground truth."""
+    from gsslam.eval.report import evaluate_files
+
+    if data is None:
+        here, checkout = Path.cwd(), Path(__file__).resolve().parents[1]
+        data = next((p / DEMO_SEQUENCE for p in (here, checkout) if (p / DEMO_SEQUENCE).is_dir()), None)
+        if data is None:
+            raise typer.BadParameter(
+                f"{DEMO_SEQUENCE} not found; run from a clone of gsslam or pass --data", param_hint="--data"
+            )
+    run_cmd(data, "tum", "rgbd", out, None, set_, max_frames, None, progress)
+    report = evaluate_files(
+        data / "groundtruth.txt", out / "trajectory.tum", align="se3", plot=out / "ate.png"
+    )
+    _echo_table(report.table_rows(), title="trajectory vs ground truth (align=se3)")
+    typer.echo(f"outputs in {out}/: trajectory.tum, metrics.json, map.ply, renders/, ate.png")
+
+
 @app.command("render")
 def render_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run` (holds map.ply).")],

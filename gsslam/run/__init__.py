@@ -1,0 +1,1 @@
+"""The runner: run a dataset or a bag, write its outputs, export and view a run folder."""

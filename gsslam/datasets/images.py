@@ -3,7 +3,8 @@
 - ``path``: a folder (every ``.png/.jpg/.jpeg/.bmp/.tif/.tiff/.ppm/.pgm`` file, sorted by name) or
   a video file read with ``cv2.VideoCapture`` (frames decoded on demand; sequential access is cheap,
   jumping backwards re-seeks).
-- Intrinsics, first that is given: ``intrinsics=CameraIntrinsics``; ``intrinsics_file=`` a YAML
+- Intrinsics, first that is given: ``intrinsics=CameraIntrinsics``; ``intrinsics_file=`` a YAML (or a
+  ROS camera_info YAML: ``camera_matrix.data``, ``distortion_coefficients.data``, ``image_width``)
   file with ``fx, fy, cx, cy`` and optional ``distortion: [k1, k2, p1, p2[, k3]]``, ``fps``,
   ``width``, ``height`` (size defaults to the first image's); or the kwargs ``fx, fy, cx, cy``
   (+ ``distortion``). Distorted images are undistorted once; frames carry the same K, no distortion.

@@ -70,7 +70,12 @@ def record_run(run_dir: str | Path, out_rrd: str | Path, max_gaussians: int | No
 
     rec = rr.RecordingStream("gsslam", recording_id=str(run_dir.resolve()))
     out_rrd.parent.mkdir(parents=True, exist_ok=True)
-    rec.save(out_rrd)
+    target = None
+    if (run_dir / "map.ply").is_file():
+        from gsslam.io.ply import read_ply
+
+        target = np.median(read_ply(run_dir / "map.ply").means, axis=0)
+    rec.save(out_rrd, default_blueprint=_blueprint(traj.poses[0] if len(traj) else np.eye(4), target))
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     rec.log("summary", rr.TextDocument(json.dumps(metrics, indent=2), media_type="text/plain"), static=True)
     rec.log("world/trajectory", rr.LineStrips3D([traj.positions], colors=[[255, 140, 0]]), static=True)
@@ -124,6 +129,30 @@ def record_run(run_dir: str | Path, out_rrd: str | Path, max_gaussians: int | No
     rec.disconnect()
     log.info("rerun recording of %s written to %s", run_dir, out_rrd)
     return out_rrd
+
+
+def _blueprint(T_world_cam0: np.ndarray, target: np.ndarray | None):
+    """The layout the viewer opens with: the 3D world large, seen from behind and above the first
+    camera towards the map's median point; motion plots and the event log beside it."""
+    import rerun.blueprint as rrb
+
+    c, fwd, up = T_world_cam0[:3, 3], T_world_cam0[:3, 2], -T_world_cam0[:3, 1]
+    target = c + fwd if target is None else np.asarray(target, dtype=np.float64)
+    dist = max(float(np.linalg.norm(target - c)), 1e-3)
+    eye = rrb.EyeControls3D(position=c - 0.8 * dist * fwd + 0.5 * dist * up, look_target=target, eye_up=up)
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="map, trajectory, keyframes", eye_controls=eye),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="metrics/step_translation", name="translation per frame"),
+                rrb.TimeSeriesView(origin="metrics/step_rotation_deg", name="rotation per frame (deg)"),
+                rrb.TextLogView(origin="log", name="events"),
+                rrb.TextDocumentView(origin="summary", name="metrics.json"),
+            ),
+            column_shares=[3, 1],
+        ),
+        collapse_panels=True,
+    )
 
 
 def _log_map(rr, rec, ply: Path, max_gaussians: int | None) -> None:

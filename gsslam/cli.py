@@ -111,9 +111,9 @@ def run_cmd(
     cfg = load_config(config, set_ or [], mode=mode)
     ds_kwargs = _dataset_args(dataset_arg or [])
     if intrinsics is not None:
-        if dataset not in ("images", "tum"):
+        if dataset not in ("images", "tum", "rosbag"):
             raise typer.BadParameter(
-                f"--intrinsics is for --dataset images or tum; {dataset} reads its own calibration",
+                f"--intrinsics is for --dataset images, tum or rosbag; {dataset} reads its own calibration",
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics

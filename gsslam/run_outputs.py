@@ -28,7 +28,7 @@ from gsslam.types import Trajectory
 
 log = logging.getLogger(__name__)
 
-DATASETS_WITH_OPTIONAL_DEPTH = ("tum", "7scenes")  # loaders that take ``with_depth``
+DATASETS_WITH_OPTIONAL_DEPTH = ("tum", "7scenes", "rosbag")  # loaders that take ``with_depth``
 
 ProgressCallback = Callable[[int, int, float], None]  # (frames done, total, frames per second)
 

@@ -182,9 +182,11 @@ def write_outputs(
     traj, kf_traj = _trajectory(pipe, poses), _trajectory(pipe, kf_poses)
     write_tum(traj, out / "trajectory.tum")
     write_tum(kf_traj, out / "keyframes.tum")
-    try:  # keyframe images make the run folder self-contained for `gsslam export` / `--viz rerun`
+    try:  # keyframe images + camera make the run folder self-contained for `gsslam export` / `--viz rerun`
+        from gsslam.mapping.render_run import save_intrinsics
         from gsslam.run.keyframes import KEYFRAME_DIR, save_keyframe_images
 
+        save_intrinsics(pipe.intrinsics, out / "intrinsics.yaml")  # also without a map
         kf_stamps = {i: pipe.timestamps[i] for i in kf_poses if i in pipe.timestamps}
         save_keyframe_images(ds, kf_stamps, out / KEYFRAME_DIR)
     except Exception as e:  # images must never lose a run's trajectory and numbers

@@ -66,7 +66,10 @@ def _load_run(run_dir: Path, need_map: bool):
 
     for name in ("keyframes.tum", "intrinsics.yaml"):
         if not (run_dir / name).is_file():
-            raise ExportError(f"{run_dir / name} not found; export needs the folder a `gsslam run` wrote")
+            raise ExportError(
+                f"{run_dir / name} not found; export needs the folder a `gsslam run` wrote "
+                "(runs made before exports existed wrote intrinsics.yaml only with a map: re-run)"
+            )
     kf = read_tum(run_dir / "keyframes.tum")
     intr = load_intrinsics(run_dir / "intrinsics.yaml")
     g = None

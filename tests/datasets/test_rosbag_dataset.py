@@ -62,6 +62,12 @@ def test_run_on_bag_gives_the_same_trajectory_as_on_the_folder(bundled_tum, ros1
     # the runner keeps one image per keyframe, named by its timestamp, for exports
     n_kf = sum(1 for line in (tmp_path / "bag" / "keyframes.tum").read_text().splitlines() if line[0] != "#")
     assert len(list((tmp_path / "bag" / "keyframes").glob("*.jpg"))) == n_kf > 0
+    # ... and its camera, so that a run without a map still exports its keyframe cameras
+    from gsslam.io.colmap import read_colmap_text
+    from gsslam.run.export import export_run
+
+    model = read_colmap_text(export_run(tmp_path / "bag", "colmap", images=True) / "sparse" / "0")
+    assert len(model.images) == n_kf and len(model.points_xyz) == 0
 
 
 def test_topic_choice_and_errors(tum_frames, ros1_bag, tmp_path):

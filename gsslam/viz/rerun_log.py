@@ -70,12 +70,7 @@ def record_run(run_dir: str | Path, out_rrd: str | Path, max_gaussians: int | No
 
     rec = rr.RecordingStream("gsslam", recording_id=str(run_dir.resolve()))
     out_rrd.parent.mkdir(parents=True, exist_ok=True)
-    target = None
-    if (run_dir / "map.ply").is_file():
-        from gsslam.io.ply import read_ply
-
-        target = np.median(read_ply(run_dir / "map.ply").means, axis=0)
-    rec.save(out_rrd, default_blueprint=_blueprint(traj.poses[0] if len(traj) else np.eye(4), target))
+    rec.save(out_rrd, default_blueprint=_blueprint())
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     rec.log("summary", rr.TextDocument(json.dumps(metrics, indent=2), media_type="text/plain"), static=True)
     rec.log("world/trajectory", rr.LineStrips3D([traj.positions], colors=[[255, 140, 0]]), static=True)
@@ -131,18 +126,17 @@ def record_run(run_dir: str | Path, out_rrd: str | Path, max_gaussians: int | No
     return out_rrd
 
 
-def _blueprint(T_world_cam0: np.ndarray, target: np.ndarray | None):
-    """The layout the viewer opens with: the 3D world large, seen from behind and above the first
-    camera towards the map's median point; motion plots and the event log beside it."""
+def _blueprint():
+    """The layout the viewer opens with: the 3D world large, motion plots, events and metrics beside it.
+
+    (A default eye placed behind the first camera, ``rrb.EyeControls3D``, kept rerun 0.41's
+    ``--screenshot-to`` from ever finishing under Xvfb, so the viewer's own default eye is used.)
+    """
     import rerun.blueprint as rrb
 
-    c, fwd, up = T_world_cam0[:3, 3], T_world_cam0[:3, 2], -T_world_cam0[:3, 1]
-    target = c + fwd if target is None else np.asarray(target, dtype=np.float64)
-    dist = max(float(np.linalg.norm(target - c)), 1e-3)
-    eye = rrb.EyeControls3D(position=c - 0.8 * dist * fwd + 0.5 * dist * up, look_target=target, eye_up=up)
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="map, trajectory, keyframes", eye_controls=eye),
+            rrb.Spatial3DView(origin="world", name="map, trajectory, keyframes"),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="metrics/step_translation", name="translation per frame"),
                 rrb.TimeSeriesView(origin="metrics/step_rotation_deg", name="rotation per frame (deg)"),

@@ -106,10 +106,11 @@ def export_run(
 ) -> Path:
     """Export ``run_dir`` in format ``fmt`` to ``out`` (default ``run_dir/export_<fmt>``); returns ``out``."""
     from gsslam.io.colmap import ColmapCamera, ColmapImage, ColmapModel, write_colmap_text
-    from gsslam.io.ply import SH_C0
 
     if fmt not in FORMATS:
         raise ExportError(f"unknown export format {fmt!r}; choose one of: {', '.join(FORMATS)}")
+    if fmt == "inria" and not 0 <= sh_degree <= 3:
+        raise ExportError(f"--sh-degree must be 0..3 (the INRIA code's range), got {sh_degree}")
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise ExportError(f"run folder not found: {run_dir}")
@@ -118,7 +119,7 @@ def export_run(
     units = run_units(run_dir)
     names = [f"{timestamp_name(t)}.jpg" for t in kf.timestamps]
     xyz = g.means if g is not None else np.zeros((0, 3))
-    rgb = np.clip(0.5 + SH_C0 * g.f_dc, 0, 1) * 255 if g is not None else np.zeros((0, 3))
+    rgb = g.rgb * 255 if g is not None else np.zeros((0, 3))  # DC colour, 0..255
     out.mkdir(parents=True, exist_ok=True)
     if images:
         _copy_images(run_dir, kf.timestamps, names, out / "images")

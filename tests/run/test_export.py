@@ -66,6 +66,8 @@ def test_missing_images_and_bad_format_are_actionable(tmp_path):
     export_run(run, "colmap", tmp_path / "c2")  # without --images the model alone is fine
     with pytest.raises(ExportError, match="colmap, nerfstudio, inria"):
         export_run(run, "ply", tmp_path / "x")
+    with pytest.raises(ExportError, match="0..3"):
+        export_run(run, "inria", tmp_path / "x", sh_degree=4)
     (run / "map.ply").unlink()
     with pytest.raises(ExportError, match="map.ply"):
         export_run(run, "inria", tmp_path / "i")

@@ -70,7 +70,7 @@ def eval_cmd(
     Prints ATE (position error, m) and RPE over --rpe-delta frames (translation m, rotation deg).
     Definitions match evo's ape/rpe; see docs/evaluation.md.
     """
-    from gsslam.eval.report import evaluate_files
+    from gsslam.run.evaluate import evaluate_files
 
     report = evaluate_files(gt, est, align=align, fmt=fmt, max_dt=max_dt, rpe_delta=rpe_delta, plot=plot)
     if as_json:
@@ -104,7 +104,7 @@ def run_cmd(
 ) -> None:
     """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT."""
     from gsslam.config import load_config
-    from gsslam.pipeline import run_sequence
+    from gsslam.run.sequence import run_sequence
 
     if viz not in (None, "rerun"):
         raise typer.BadParameter(f"unknown viewer {viz!r}; the only one is 'rerun'", param_hint="--viz")
@@ -197,7 +197,7 @@ def render_cmd(
     every: Annotated[int, typer.Option(help="Render every N-th pose of trajectory.tum.")] = 10,
 ) -> None:
     """Render frames from a saved Gaussian map along the saved trajectory."""
-    from gsslam.mapping.render_run import render_run
+    from gsslam.run.render import render_run
 
     n = render_run(run_dir, out, every=every)
     typer.echo(f"wrote {n} renders to {out}")

@@ -10,7 +10,7 @@ import pytest
 from gsslam.config import load_config
 from gsslam.datasets.synthetic import SyntheticDataset
 from gsslam.io.trajectory import read_tum
-from gsslam.run_outputs import run_dataset
+from gsslam.run.sequence import run_dataset
 
 pytest.importorskip("gsslam.graph.submap_graph")
 pytest.importorskip("gsslam.frontend.correspondences")
@@ -23,7 +23,7 @@ def _metrics(out) -> dict:
 
 
 def test_rgbd_on_bundled_tum(bundled_tum, tmp_path):
-    from gsslam.pipeline import run_sequence
+    from gsslam.run.sequence import run_sequence
 
     cfg = load_config(None, FAST, mode="rgbd")
     seen = []

@@ -8,7 +8,7 @@ import pytest
 from gsslam.config import load_config
 from gsslam.datasets.base import open_dataset
 from gsslam.datasets.revisit import RevisitDataset
-from gsslam.run_outputs import run_dataset
+from gsslam.run.sequence import run_dataset
 
 
 def test_revisit_dataset_mirrors_frames_and_ground_truth(bundled_tum):

@@ -11,7 +11,7 @@ from gsslam.config import load_config
 from gsslam.datasets.base import open_dataset
 from gsslam.io.ply import read_ply
 from gsslam.io.trajectory import read_tum
-from gsslam.run_outputs import run_dataset
+from gsslam.run.sequence import run_dataset
 
 torch = pytest.importorskip("torch")
 
@@ -80,7 +80,7 @@ def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
 
 
 def test_render_command_reads_a_run(mapped_run, tmp_path):
-    from gsslam.mapping.render_run import render_run
+    from gsslam.run.render import render_run
 
     out, m = mapped_run
     n = render_run(out, tmp_path / "r", every=10)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gsslam.config import load_config
-from gsslam.tracking import interpolate_poses
+from gsslam.frontend.tracking import interpolate_poses
 
 pytest.importorskip("gsslam.graph.submap_graph")
 
@@ -19,7 +19,7 @@ KITTI_BOUND = 0.005  # of the path length
 
 
 def _run(path, name, tmp_path, max_frames=None, **kw) -> dict:
-    from gsslam.pipeline import run_sequence
+    from gsslam.run.sequence import run_sequence
 
     cfg = load_config(None, FAST, mode="mono")
     run_sequence(path, name, cfg, tmp_path, max_frames=max_frames, progress=False, **kw)
@@ -59,7 +59,7 @@ def test_mono_bundled_euroc_without_ground_truth(repo_root, tmp_path):
 
 def test_static_camera_gives_an_empty_map_that_is_reported_as_such(repo_root, tmp_path):
     """A camera at rest observes no depth: the mapper seeds nothing, and the run says so plainly."""
-    from gsslam.pipeline import run_sequence
+    from gsslam.run.sequence import run_sequence
 
     cfg = load_config(None, ["loop.enabled=false"], mode="mono")
     res = run_sequence(repo_root / "data" / "euroc_V1_01_easy_20", "euroc", cfg, tmp_path, progress=False)
@@ -70,7 +70,7 @@ def test_static_camera_gives_an_empty_map_that_is_reported_as_such(repo_root, tm
 
 
 def test_mapped_mono_run_reports_a_non_empty_map(bundled_tum, tmp_path):
-    from gsslam.pipeline import run_sequence
+    from gsslam.run.sequence import run_sequence
 
     over = [
         "loop.enabled=false",

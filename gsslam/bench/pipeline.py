@@ -56,7 +56,7 @@ def run(
     from gsslam.config import load_config
     from gsslam.datasets.base import open_dataset
     from gsslam.datasets.prefetch import PrefetchedDataset
-    from gsslam.run_outputs import run_dataset
+    from gsslam.run.sequence import run_dataset
 
     base = open_dataset(dataset, path or DEFAULT_PATH)
     inner = PrefetchedDataset(base, stop=max_frames) if prefetch else base

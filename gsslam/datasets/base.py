@@ -7,6 +7,7 @@ A dataset is a lazily-read sequence of :class:`gsslam.types.Frame`: nothing is d
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -40,11 +41,25 @@ def iterate(dataset: Dataset, max_frames: int | None = None) -> Iterator[Frame]:
         yield dataset[i]
 
 
-_REGISTRY: dict[str, Callable[..., Dataset]] = {}
+# Built-in loaders by name: "module:Class", imported only when that name is opened. One line per loader.
+BUILTIN_LOADERS: dict[str, str] = {
+    "tum": "gsslam.datasets.tum:TumRgbdDataset",
+    "euroc": "gsslam.datasets.euroc:EurocDataset",
+    "kitti": "gsslam.datasets.kitti:KittiOdometryDataset",
+    "7scenes": "gsslam.datasets.sevenscenes:SevenScenesDataset",
+    "images": "gsslam.datasets.images:ImageSequenceDataset",
+    "rosbag": "gsslam.datasets.rosbag:RosbagDataset",
+    "synthetic": "gsslam.datasets.synthetic:SyntheticDataset",
+}
+
+_REGISTRY: dict[str, Callable[..., Dataset]] = {}  # loaders registered at run time (user loaders)
 
 
 def register_dataset(name: str) -> Callable[[type], type]:
-    """Class decorator: make a loader available to :func:`open_dataset` under ``name``."""
+    """Class decorator: make a (user) loader available to :func:`open_dataset` under ``name``.
+
+    A registered loader takes precedence over a built-in one of the same name.
+    """
 
     def deco(cls: type) -> type:
         _REGISTRY[name] = cls
@@ -54,21 +69,23 @@ def register_dataset(name: str) -> Callable[[type], type]:
 
 
 def available_datasets() -> list[str]:
-    _load_builtin()
-    return sorted(_REGISTRY)
+    return sorted(set(BUILTIN_LOADERS) | set(_REGISTRY))
+
+
+def loader(name: str) -> Callable[..., Dataset]:
+    """The loader class registered as ``name``; a built-in one is imported on first use."""
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    if name not in BUILTIN_LOADERS:
+        raise DatasetError(f"unknown dataset type '{name}'; choose one of: {', '.join(available_datasets())}")
+    module, _, cls = BUILTIN_LOADERS[name].partition(":")
+    return getattr(importlib.import_module(module), cls)
 
 
 def open_dataset(name: str, path: str | Path, **kwargs: Any) -> Dataset:
     """Open the dataset at ``path`` with the loader registered as ``name``."""
-    _load_builtin()
-    if name not in _REGISTRY:
-        raise DatasetError(f"unknown dataset type '{name}'; choose one of: {', '.join(sorted(_REGISTRY))}")
+    cls = loader(name)
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"dataset path does not exist: {p}")
-    return _REGISTRY[name](p, **kwargs)
-
-
-def _load_builtin() -> None:
-    # Importing the modules runs their @register_dataset decorators.
-    from gsslam.datasets import euroc, images, kitti, rosbag, sevenscenes, synthetic, tum  # noqa: F401
+    return cls(p, **kwargs)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import (
     FrameGroundTruth,
     check_increasing,
@@ -137,7 +137,6 @@ def _find_gt(root: Path) -> Path | None:
     return None
 
 
-@register_dataset("euroc")
 class EurocDataset:
     """A EuRoC MAV sequence (cam0 only); see the module docstring for the kwargs."""
 

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import yaml
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import load_intrinsics_yaml, normalize_index
 from gsslam.datasets.image_io import IMAGE_SUFFIXES, Undistorter, image_size, read_color, to_rgb_float
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
@@ -79,7 +79,6 @@ def _yaml_fps(path: Path) -> float | None:
     return float(fps) if fps is not None else None
 
 
-@register_dataset("images")
 class ImageSequenceDataset:
     """Images of a folder or frames of a video; see the module docstring for the kwargs."""
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import (
     FrameGroundTruth,
     check_increasing,
@@ -77,7 +77,6 @@ def read_kitti_poses(path: Path) -> np.ndarray:  # -> [N, 4, 4]
     return T
 
 
-@register_dataset("kitti")
 class KittiOdometryDataset:
     """One KITTI odometry sequence; see the module docstring for the kwargs."""
 

@@ -9,7 +9,7 @@ happened, and :meth:`FramePrefetcher.close` (or leaving the ``with`` block, or b
 loop) stops and joins the thread.
 
 :class:`PrefetchedDataset` wraps a dataset so that code reading ``ds[0], ds[1], ...`` in order
-(e.g. :func:`gsslam.run_outputs.run_dataset`) gets prefetched frames without any change.
+(e.g. :func:`gsslam.run.sequence.run_dataset`) gets prefetched frames without any change.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import (
     FrameGroundTruth,
     associate_nearest,
@@ -133,7 +133,6 @@ def _intrinsics_from_camera_info(msg, topic: str) -> CameraIntrinsics:
     return CameraIntrinsics(fx, fy, cx, cy, int(msg.width), int(msg.height), dist)
 
 
-@register_dataset("rosbag")
 class RosbagDataset:
     """A ROS1/ROS2/mcap recording; see the module docstring for the kwargs."""
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import normalize_index
 from gsslam.datasets.image_io import read_color, read_depth
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
@@ -55,7 +55,6 @@ def read_pose_txt(path: Path) -> np.ndarray | None:  # -> [4, 4] or None when ab
     return T
 
 
-@register_dataset("7scenes")
 class SevenScenesDataset:
     """One 7-Scenes sequence; see the module docstring for the kwargs."""
 

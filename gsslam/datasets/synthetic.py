@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 import yaml
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.geometry import make_T, pixel_grid
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
@@ -85,7 +85,6 @@ def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:  # -> T_world_c
     return make_T(np.stack([x, y, z], axis=1), eye)
 
 
-@register_dataset("synthetic")
 class SyntheticDataset:
     """Lazily ray-cast RGB-D frames of a textured room; exact depth and ground-truth poses."""
 

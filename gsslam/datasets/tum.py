@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsslam.datasets.base import DatasetError, register_dataset
+from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import (
     FrameGroundTruth,
     associate_nearest,
@@ -71,7 +71,6 @@ def _read_list(path: Path, what: str) -> tuple[np.ndarray, list[str]]:
     return times, [f[1] for _, f in rows]
 
 
-@register_dataset("tum")
 class TumRgbdDataset:
     """A TUM RGB-D sequence folder; see the module docstring for the kwargs."""
 

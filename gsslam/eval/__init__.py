@@ -4,7 +4,7 @@
 - :mod:`~gsslam.eval.align` fits an Umeyama SE(3)/Sim(3) alignment,
 - :mod:`~gsslam.eval.ate` / :mod:`~gsslam.eval.rpe` compute absolute / relative pose errors,
 - :mod:`~gsslam.eval.image_metrics` gives PSNR and SSIM,
-- :mod:`~gsslam.eval.report` ties them together for files (``gsslam eval``).
+- :mod:`~gsslam.eval.report` ties them together (files are read by :mod:`gsslam.run.evaluate`).
 
 The trajectory metrics follow evo's definitions (see docs/evaluation.md). No function here modifies
 its inputs.

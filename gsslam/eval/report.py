@@ -1,15 +1,14 @@
 """One evaluation of an estimated trajectory against ground truth: association, alignment, ATE, RPE.
 
-:func:`evaluate` works on :class:`gsslam.types.Trajectory` values, :func:`evaluate_files` on files
-(it backs ``gsslam eval``). The result is an :class:`EvalReport` with ``to_dict()`` (JSON-able) and
-``table_rows()`` (for the CLI table).
+:func:`evaluate` works on :class:`gsslam.types.Trajectory` values (pure: no files;
+:func:`gsslam.run.evaluate.evaluate_files` reads them for ``gsslam eval``). The result is an
+:class:`EvalReport` with ``to_dict()`` (JSON-able) and ``table_rows()`` (for the CLI table).
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 from gsslam.eval.association import Association
 from gsslam.eval.ate import AteResult, compute_ate
@@ -84,33 +83,3 @@ def evaluate(
     rpe = compute_rpe(gt_poses, est_aligned, rpe_delta)
     _log.debug("ATE rmse %.6f m over %d pairs (%s)", ate.stats.rmse, len(assoc), align)
     return EvalReport(gt_name, est_name, align, float(max_dt), len(gt), len(est), assoc, ate, rpe)
-
-
-def evaluate_files(
-    gt: str | Path,
-    est: str | Path,
-    align: str = "sim3",
-    fmt: str = "tum",
-    max_dt: float = 0.02,
-    rpe_delta: int = 1,
-    plot: str | Path | None = None,
-) -> EvalReport:
-    """Read both files in format ``fmt`` (tum | kitti), :func:`evaluate`, and optionally write a PNG plot."""
-    from gsslam.io.trajectory import read_trajectory
-
-    gt_traj = read_trajectory(gt, fmt)
-    est_traj = read_trajectory(est, fmt)
-    report = evaluate(gt_traj, est_traj, align, max_dt, rpe_delta, gt_name=str(gt), est_name=str(est))
-    if plot is not None:
-        from gsslam.viz.plots import plot_trajectory
-
-        assoc = report.association
-        est_xyz = report.ate.alignment.apply_positions(est_traj.positions[assoc.est_indices])
-        plot_trajectory(
-            plot,
-            gt_traj.timestamps[assoc.gt_indices],
-            gt_traj.positions[assoc.gt_indices],
-            est_xyz,
-            title=f"{Path(est).name} vs {Path(gt).name}: ATE rmse {report.ate.stats.rmse:.4f} m ({align})",
-        )
-    return report

@@ -36,7 +36,7 @@ from gsslam.frontend.encoder import (
     robust_depth_stats,
 )
 from gsslam.frontend.flow import DISFlow, FlowEstimator, compose_flows, forward_backward_mask, textured_mask
-from gsslam.frontend.pose_estimation import pnp, sample_matches
+from gsslam.frontend.pose_estimation import pnp, random_flow_matches
 from gsslam.frontend.two_view import bundle_adjust, triangulate_rays, two_view_pose
 from gsslam.geometry import backproject, depth_to_points, invert_T
 from gsslam.types import Frame, SubmapEncoding
@@ -105,7 +105,7 @@ class MonoEncoder:
         # two-view initialisation against the farthest usable frame
         tv, ref = None, None
         for r in range(n - 1, 0, -1):
-            uv0, uvr, _ = sample_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
+            uv0, uvr, _ = random_flow_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
             res = two_view_pose(K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg)
             meta.setdefault("two_view", []).append(
                 {
@@ -314,7 +314,7 @@ class MonoEncoder:
         P0 = depth_to_points(K, sd)
         points[0], conf[0] = P0, np.where(np.isfinite(sd), c0, 0.0)
         for i in range(1, n):
-            uv0, uvi, z = sample_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
+            uv0, uvi, z = random_flow_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
             thr = 2.0 * self.cfg.ransac_threshold_px
             res = pnp(backproject(K, uv0, z), uvi, K, thr, self.cfg.min_inliers)
             if res.T_tgt_src is None:

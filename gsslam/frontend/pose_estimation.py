@@ -1,7 +1,9 @@
 """Camera pose from 3D-2D matches (PnP RANSAC + Levenberg-Marquardt refinement) and flow sampling.
 
-Shared by the RGB-D and monocular encoders. Poses are ``T_tgt_src``: they map points of the
-source camera (where the 3D points live) into the target camera (where the pixels are).
+The one PnP of the frontend: the RGB-D and monocular encoders and frame tracking
+(:func:`gsslam.frontend.tracking.solve_relative_pose`) all call :func:`pnp`. Poses are ``T_tgt_src``:
+they map points of the source camera (where the 3D points live) into the target camera (where the
+pixels are).
 """
 
 from __future__ import annotations
@@ -31,8 +33,16 @@ def pnp(
     threshold_px: float,
     min_inliers: int,
     init: np.ndarray | None = None,  # [4, 4] T_tgt_src guess
+    iterations: int = 200,
+    min_inlier_ratio: float = 0.0,
+    reselect: bool = True,
 ) -> PnPResult:
-    """RANSAC EPnP (or iterative from ``init``), then LM refinement on the inliers."""
+    """RANSAC EPnP (or iterative from ``init``), then LM refinement on the inliers.
+
+    Fails (``T_tgt_src=None``) with fewer than ``min_inliers`` RANSAC inliers or a smaller share than
+    ``min_inlier_ratio`` of the usable points. ``reselect``: after the first refinement, take the points
+    within ``threshold_px`` of the refined pose as inliers and refine once more.
+    """
     ok_pts = np.isfinite(X_src).all(1) & np.isfinite(uv_tgt).all(1) & (X_src[:, 2] > 0)
     X, uv = X_src[ok_pts].astype(np.float64), uv_tgt[ok_pts].astype(np.float64)
     if len(X) < max(6, min_inliers):
@@ -49,7 +59,7 @@ def pnp(
             rvec0,
             tvec0,
             useExtrinsicGuess=use_guess,
-            iterationsCount=200,
+            iterationsCount=iterations,
             reprojectionError=threshold_px,
             confidence=0.999,
             flags=cv2.SOLVEPNP_ITERATIVE if use_guess else cv2.SOLVEPNP_EPNP,
@@ -57,17 +67,18 @@ def pnp(
     except cv2.error as e:
         log.debug("solvePnPRansac failed: %s", e)
         return PnPResult(None, 0, float("nan"))
-    if not ok or inl is None or len(inl) < min_inliers:
-        return PnPResult(None, 0 if inl is None else len(inl), float("nan"))
+    n_in = 0 if inl is None else len(inl)
+    if not ok or n_in < min_inliers or n_in < min_inlier_ratio * len(X):
+        return PnPResult(None, n_in, float("nan"))
     idx = inl.reshape(-1)
     rvec, tvec = cv2.solvePnPRefineLM(X[idx], uv[idx], K, None, rvec, tvec)
-    # re-select inliers with the refined pose and refine once more
-    proj = cv2.projectPoints(X, rvec, tvec, K, None)[0].reshape(-1, 2)
-    err = np.linalg.norm(proj - uv, axis=1)
-    idx = np.flatnonzero(err < threshold_px)
-    if len(idx) < min_inliers:
-        return PnPResult(None, len(idx), float("nan"))
-    rvec, tvec = cv2.solvePnPRefineLM(X[idx], uv[idx], K, None, rvec, tvec)
+    if reselect:  # re-select inliers with the refined pose and refine once more
+        proj = cv2.projectPoints(X, rvec, tvec, K, None)[0].reshape(-1, 2)
+        err = np.linalg.norm(proj - uv, axis=1)
+        idx = np.flatnonzero(err < threshold_px)
+        if len(idx) < min_inliers:
+            return PnPResult(None, len(idx), float("nan"))
+        rvec, tvec = cv2.solvePnPRefineLM(X[idx], uv[idx], K, None, rvec, tvec)
     proj = cv2.projectPoints(X[idx], rvec, tvec, K, None)[0].reshape(-1, 2)
     rms = float(np.sqrt(np.mean(np.sum((proj - uv[idx]) ** 2, axis=1))))
     T = np.eye(4)
@@ -76,14 +87,16 @@ def pnp(
     return PnPResult(T, len(idx), rms)
 
 
-def sample_matches(
+def random_flow_matches(
     flow: np.ndarray,  # [h, w, 2] source -> target
     valid: np.ndarray,  # [h, w] bool
     depth_src: np.ndarray | None,  # [h, w] or None
     max_points: int,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Random valid pixels (with finite positive depth when given): uv_src, uv_tgt [N, 2], z [N]."""
+    """Up to ``max_points`` random valid pixels (with finite positive depth when given) and their flow
+    targets: uv_src, uv_tgt [N, 2], z [N] (NaN without depth). Frame tracking samples a regular grid
+    instead (:func:`gsslam.frontend.tracking.grid_flow_matches`)."""
     h, w = flow.shape[:2]
     ok = valid & np.isfinite(flow).all(-1)
     if depth_src is not None:
@@ -110,7 +123,7 @@ def pnp_from_flow(
     max_points: int = 3000,
     init: np.ndarray | None = None,
 ) -> PnPResult:
-    uv_s, uv_t, z = sample_matches(flow, valid, depth_src, max_points, rng)
+    uv_s, uv_t, z = random_flow_matches(flow, valid, depth_src, max_points, rng)
     return pnp(backproject(K, uv_s, z), uv_t, K, threshold_px, min_inliers, init)
 
 

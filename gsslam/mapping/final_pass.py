@@ -3,47 +3,44 @@
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from gsslam.mapping.keyframes import torch_threads
+from gsslam.mapping.state import MapState, refined_poses
 from gsslam.mapping.window import adam_steps, run_stats
-
-if TYPE_CHECKING:
-    from gsslam.mapping.mapper import GaussianMapper
 
 _ERROR_STATE = ("err_sum", "err_count", "max_radius")
 
 
-def epoch_picker(mapper: GaussianMapper, order: list[int]):
+def epoch_picker(state: MapState, order: list[int]):
     """A ``pick(it)`` that visits every keyframe of ``order`` once per shuffled epoch."""
     queue: list[int] = []
 
     def pick(it: int) -> int:
         if not queue:
-            queue.extend(order[int(j)] for j in mapper._rng.permutation(len(order)))
+            queue.extend(order[int(j)] for j in state.rng.permutation(len(order)))
         return queue.pop()
 
     return pick
 
 
-def reset_error_state(mapper: GaussianMapper) -> None:
+def reset_error_state(state: MapState) -> None:
     """Errors from the run so far describe a map that no longer exists: start counting afresh."""
     for k in _ERROR_STATE:
-        mapper.state[k] = torch.zeros_like(mapper.state[k])
+        state.densify_state[k] = torch.zeros_like(state.densify_state[k])
 
 
-def prune_transparent(mapper: GaussianMapper) -> int:
+def prune_transparent(state: MapState) -> int:
     """Drop Gaussians with opacity below ``min_opacity``; returns how many."""
-    keep = mapper.model.opacities >= mapper.cfg.min_opacity
-    mapper.model = mapper.model.select(keep)
-    mapper.state = {k: v[keep] for k, v in mapper.state.items()}
+    keep = state.model.opacities >= state.cfg.min_opacity
+    state.model = state.model.select(keep)
+    state.densify_state = {k: v[keep] for k, v in state.densify_state.items()}
     return int((~keep).sum())
 
 
-def finalize(mapper: GaussianMapper, iterations: int | None = None) -> dict:
+def finalize(state: MapState, iterations: int | None = None) -> dict:
     """Global refinement at the end of a run: Adam over *all* keyframes (random order, poses fixed).
 
     ``iterations`` defaults to ``final_iterations_per_keyframe`` x the keyframe count (so the
@@ -52,43 +49,43 @@ def finalize(mapper: GaussianMapper, iterations: int | None = None) -> dict:
     ``final_lambda_flow``. Afterwards only transparent Gaussians are pruned (no densification).
     Returns stats.
     """
-    cfg = mapper.cfg
+    cfg = state.cfg
     if iterations is None:
-        iters = cfg.final_iterations_per_keyframe * len(mapper._order)
+        iters = cfg.final_iterations_per_keyframe * len(state.order)
     else:
         iters = int(iterations)
-    if not mapper._order or len(mapper.model) == 0 or iters <= 0:
-        return {"iterations": 0, "num_gaussians": len(mapper.model)}
-    order = list(mapper._order)
-    pick = epoch_picker(mapper, order)  # every keyframe once per epoch, so none is left out
+    if not state.order or len(state.model) == 0 or iters <= 0:
+        return {"iterations": 0, "num_gaussians": len(state.model)}
+    order = list(state.order)
+    pick = epoch_picker(state, order)  # every keyframe once per epoch, so none is left out
     t0 = time.perf_counter()
     rounds = max(0, cfg.final_densify_rounds)
     bounds = np.linspace(0, iters, rounds + 2).round().astype(int)
     densified = 0
     first = last = None
     with torch_threads(cfg.num_threads):
-        reset_error_state(mapper)
+        reset_error_state(state)
         for r in range(rounds + 1):
             n = int(bounds[r + 1] - bounds[r])
             if n <= 0:
                 continue
             lr0 = cfg.final_lr_scale * 0.1 ** (bounds[r] / max(1, iters - 1))
             f, last = adam_steps(
-                mapper, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0,
+                state, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0,
                 lambda_flow=cfg.final_lambda_flow,
             )  # fmt: skip
             first = f if first is None else first
             if r < rounds:  # densify where the whole map still errs; no error-based pruning
-                mapper.model, mapper.state, st = mapper.strategy.step(
-                    mapper.model, mapper.state, densify_only=True
+                state.model, state.densify_state, st = state.strategy.step(
+                    state.model, state.densify_state, densify_only=True
                 )
                 densified += st["cloned"] + st["split"]
-                reset_error_state(mapper)
-    pruned = prune_transparent(mapper)
-    return run_stats(mapper, iters, t0, first, last, pruned=pruned, densified=densified)
+                reset_error_state(state)
+    pruned = prune_transparent(state)
+    return run_stats(state, iters, t0, first, last, pruned=pruned, densified=densified)
 
 
-def refine_joint(mapper: GaussianMapper, iterations: int | None = None) -> dict:
+def refine_joint(state: MapState, iterations: int | None = None) -> dict:
     """Final joint refinement: keyframe poses (se(3) deltas, the first keyframe fixed) and map together.
 
     Runs after :func:`finalize` (and the graph's batch refinement): every keyframe once per shuffled
@@ -97,25 +94,25 @@ def refine_joint(mapper: GaussianMapper, iterations: int | None = None) -> dict:
     10 % (the map is already converged) and poses at ``final_lr_pose``, both decaying to 10 %. Returns
     stats including the mean / max keyframe translation moved (world units).
     """
-    cfg = mapper.cfg
+    cfg = state.cfg
     iters = cfg.final_pose_iterations if iterations is None else int(iterations)
-    if len(mapper._order) < 2 or len(mapper.model) == 0 or iters <= 0:
-        return {"iterations": 0, "num_gaussians": len(mapper.model)}
-    order = list(mapper._order)
+    if len(state.order) < 2 or len(state.model) == 0 or iters <= 0:
+        return {"iterations": 0, "num_gaussians": len(state.model)}
+    order = list(state.order)
     free = order[1:]  # the first keyframe is the gauge
-    before = mapper.refined_poses()
-    pick = epoch_picker(mapper, order)
+    before = refined_poses(state)
+    pick = epoch_picker(state, order)
     t0 = time.perf_counter()
     with torch_threads(cfg.num_threads):
-        reset_error_state(mapper)
+        reset_error_state(state)
         first, last = adam_steps(
-            mapper, iters, pick, free, order, decay=0.1, lr_scale=0.1,
+            state, iters, pick, free, order, decay=0.1, lr_scale=0.1,
             lr_pose=cfg.final_lr_pose, pose_prior_weight=cfg.final_pose_prior,
         )  # fmt: skip
-        pruned = prune_transparent(mapper)
-    after = mapper.refined_poses()
+        pruned = prune_transparent(state)
+    after = refined_poses(state)
     moved = [float(np.linalg.norm(after[i][:3, 3] - before[i][:3, 3])) for i in order]
     return run_stats(
-        mapper, iters, t0, first, last, pruned=pruned,
+        state, iters, t0, first, last, pruned=pruned,
         pose_moved_mean=float(np.mean(moved)), pose_moved_max=float(np.max(moved)),
     )  # fmt: skip

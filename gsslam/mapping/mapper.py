@@ -13,10 +13,12 @@ SING3R-SLAM's global map stage plus GaussianFlow's flow supervision, one window 
    (:mod:`gsslam.mapping.densify`).
 3. :meth:`GaussianMapper.on_poses_updated` moves the Gaussians of submaps the pose graph moved.
 
-The class wires the stages; each lives in its own module: :mod:`~gsslam.mapping.keyframes` (keyframe
-store and resizing), :mod:`~gsslam.mapping.seeding`, :mod:`~gsslam.mapping.pose_refine`,
-:mod:`~gsslam.mapping.window` (the optimization step), :mod:`~gsslam.mapping.final_pass` and
-:mod:`~gsslam.mapping.outputs` (metrics, PLY, panels).
+The class is a facade: it owns one :class:`~gsslam.mapping.state.MapState` (model, densification
+state, keyframes, flows, random generators) and passes it to the stages, plain functions that each live
+in their own module: :mod:`~gsslam.mapping.keyframes` (keyframe records and resizing),
+:mod:`~gsslam.mapping.seeding`, :mod:`~gsslam.mapping.pose_refine`, :mod:`~gsslam.mapping.window`
+(the optimization step), :mod:`~gsslam.mapping.final_pass` and :mod:`~gsslam.mapping.outputs`
+(metrics, PLY, panels). No stage imports this module.
 
 Keyframe poses ``T_world_cam`` may be Sim(3) (the scale maps submap units to world units); the camera
 itself is the rigid part. All depths the mapper returns are z-depths in world units.
@@ -32,17 +34,15 @@ import torch
 
 from gsslam.config import MapperConfig
 from gsslam.geometry import invert_T, split_sim3
+from gsslam.mapping import final_pass, outputs
 from gsslam.mapping.densify import DensifyStrategy
 from gsslam.mapping.gaussians import GaussianModel
-from gsslam.mapping.keyframes import (
-    Keyframe,
-    MapperError,
-    make_keyframe,
-    resize,
-    resolve_device,
-    torch_threads,
-)
-from gsslam.mapping.rasterize import RenderOutput, render
+from gsslam.mapping.keyframes import MapperError, make_keyframe, resize, resolve_device, torch_threads
+from gsslam.mapping.pose_refine import refine_pose
+from gsslam.mapping.rasterize import RenderOutput
+from gsslam.mapping.seeding import seed_gaussians
+from gsslam.mapping.state import MapState, refined_poses, render_keyframe, render_pose
+from gsslam.mapping.window import optimize_window
 from gsslam.types import CameraIntrinsics, Frame
 
 __all__ = ["GaussianMapper", "MapperError", "torch_threads"]
@@ -64,68 +64,49 @@ class GaussianMapper:
         self.factor_x = self.intrinsics.width / intrinsics.width
         self.factor_y = self.intrinsics.height / intrinsics.height
         self.K = torch.tensor(self.intrinsics.K, dtype=torch.float32, device=self.device)
-        self.model = GaussianModel.empty(self.device)
-        self.strategy = DensifyStrategy(
+        strategy = DensifyStrategy(
             densify_error=cfg.densify_error,
             prune_error=cfg.prune_error,
             min_opacity=cfg.min_opacity,
             max_gaussians=cfg.max_gaussians,
         )
-        self.state = self.strategy.initialize_state(0, self.device)
-        self._kfs: dict[int, Keyframe] = {}
-        self._order: list[int] = []
-        self._flows: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}
-        self._submap_poses: dict[int, np.ndarray] = {}
-        self._rng = np.random.default_rng(0)
-        self._gen = torch.Generator().manual_seed(0)
+        self.map = MapState(
+            cfg=cfg,
+            device=self.device,
+            intrinsics=self.intrinsics,
+            K=self.K,
+            strategy=strategy,
+            model=GaussianModel.empty(self.device),
+            densify_state=strategy.initialize_state(0, self.device),
+        )
+        self._submap_poses: dict[int, np.ndarray] = {}  # submap id -> T_world_submap the map follows
 
     # ------------------------------------------------------------------ properties
     @property
+    def model(self) -> GaussianModel:
+        return self.map.model
+
+    @property
     def num_gaussians(self) -> int:
-        return len(self.model)
+        return len(self.map.model)
 
     @property
     def size_mb(self) -> float:
-        return self.model.size_bytes() / 1e6
+        return self.map.model.size_bytes() / 1e6
 
     @property
     def keyframe_indices(self) -> list[int]:
-        return list(self._order)
-
-    def _kf(self, index: int) -> Keyframe:
-        if index not in self._kfs:
-            raise MapperError(f"frame {index} is not a mapper keyframe (known: {self._order[-5:]}...)")
-        return self._kfs[index]
+        return list(self.map.order)
 
     # ------------------------------------------------------------------ poses
     def refined_poses(self) -> dict[int, np.ndarray]:
         """``T_world_cam`` [4, 4] of every keyframe with its refinement applied (Sim(3) scale kept)."""
-        return {i: self._kfs[i].refined_pose() for i in self._order}
+        return refined_poses(self.map)
 
     # ------------------------------------------------------------------ rendering
-    def _render(self, T_cam_world: torch.Tensor, model: GaussianModel | None = None) -> RenderOutput:
-        m = self.model if model is None else model
-        return render(
-            m.means,
-            m.quats,
-            m.scales,
-            m.opacities,
-            m.rgb,
-            T_cam_world,
-            self.K,
-            self.intrinsics.width,
-            self.intrinsics.height,
-        )
-
     def render_pose(self, T_world_cam: np.ndarray) -> RenderOutput:
         """Render the map (no gradients) at the mapper resolution from a (rigid or Sim(3)) pose."""
-        R, t, _ = split_sim3(np.asarray(T_world_cam, dtype=np.float64))
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R.T, -R.T @ t
-        with torch.no_grad():
-            return self._render(torch.as_tensor(T, dtype=torch.float32, device=self.device))
-
-    # ------------------------------------------------------------------ input
+        return render_pose(self.map, T_world_cam)
 
     # ------------------------------------------------------------------ input
     def add_keyframe(
@@ -137,26 +118,23 @@ class GaussianMapper:
         confidence: np.ndarray | None = None,  # [h, w] in [0, 1]
     ) -> int:
         """Register a keyframe and seed Gaussians in its unmapped pixels; returns how many were added."""
-        from gsslam.mapping.seeding import seed_gaussians
-
+        st = self.map
         size = (self.intrinsics.width, self.intrinsics.height)
         kf = make_keyframe(self.cfg, frame, T_world_cam, submap_id, size, self.device, points_cam, confidence)
-        if frame.index not in self._kfs:
-            self._order.append(frame.index)
-        self._kfs[frame.index] = kf
+        if frame.index not in st.keyframes:
+            st.order.append(frame.index)
+        st.keyframes[frame.index] = kf
         with torch_threads(self.cfg.num_threads):
-            if self.cfg.pose_refinement and len(self.model) and frame.index != self._order[0]:
+            if self.cfg.pose_refinement and len(st.model) and frame.index != st.order[0]:
                 self.refine_pose(frame.index, self.cfg.pose_iterations)
-            return seed_gaussians(self, kf)
+            return seed_gaussians(st, kf)
 
     def refine_pose(self, frame_index: int, iterations: int) -> float:
         """Intra-submap pose refinement of one keyframe against the frozen map; returns the last loss.
 
         See :func:`gsslam.mapping.pose_refine.refine_pose`.
         """
-        from gsslam.mapping.pose_refine import refine_pose
-
-        return refine_pose(self, self._kf(frame_index), iterations)
+        return refine_pose(self.map, self.map.keyframe(frame_index), iterations)
 
     def add_flow(
         self,
@@ -166,7 +144,7 @@ class GaussianMapper:
         valid: np.ndarray,  # [H, W] bool
     ) -> None:
         """Store dense flow between two keyframes (rescaled to the mapper resolution) for the flow loss."""
-        self._kf(frame_a_index), self._kf(frame_b_index)
+        self.map.keyframe(frame_a_index), self.map.keyframe(frame_b_index)
         H, W = self.full_intrinsics.height, self.full_intrinsics.width
         if flow.shape != (H, W, 2) or valid.shape != (H, W):
             raise MapperError(
@@ -176,7 +154,7 @@ class GaussianMapper:
         f = resize(np.nan_to_num(flow.astype(np.float32)), w, h)
         f = f * np.array([self.factor_x, self.factor_y], dtype=np.float32)
         v = resize(valid.astype(np.float32), w, h) > 0.99
-        self._flows[(frame_a_index, frame_b_index)] = (
+        self.map.flows[(frame_a_index, frame_b_index)] = (
             torch.as_tensor(f, device=self.device),
             torch.as_tensor(v, device=self.device),
         )
@@ -200,11 +178,11 @@ class GaussianMapper:
             self._submap_poses[sid] = T_new.copy()
             if T_old is None or np.allclose(T_old, T_new, atol=1e-9):
                 continue
-            moved += self.model.apply_transform(sid, T_new @ invert_T(T_old))
+            moved += self.map.model.apply_transform(sid, T_new @ invert_T(T_old))
         for idx, T in keyframe_poses.items():
-            if idx not in self._kfs:
+            if idx not in self.map.keyframes:
                 continue
-            kf = self._kfs[idx]
+            kf = self.map.keyframes[idx]
             R, t, s = split_sim3(np.asarray(T, dtype=np.float64))
             if abs(s - kf.scale) > 1e-9:
                 kf.depth = kf.depth * (s / kf.scale)
@@ -214,36 +192,27 @@ class GaussianMapper:
         return moved
 
     # ------------------------------------------------------------------ optimization
-
-    # ------------------------------------------------------------------ optimization
     def optimize(self, iterations: int | None = None) -> dict:
         """Sliding-window optimization; see :func:`gsslam.mapping.window.optimize_window`."""
-        from gsslam.mapping.window import optimize_window
-
-        return optimize_window(self, iterations)
+        return optimize_window(self.map, iterations)
 
     def finalize(self, iterations: int | None = None) -> dict:
         """End-of-run pass over all keyframes; see :func:`gsslam.mapping.final_pass.finalize`."""
-        from gsslam.mapping.final_pass import finalize
-
-        return finalize(self, iterations)
+        return final_pass.finalize(self.map, iterations)
 
     def refine_joint(self, iterations: int | None = None) -> dict:
         """Final joint pose+map refinement; see :func:`gsslam.mapping.final_pass.refine_joint`.
 
         Afterwards :meth:`refined_poses` holds the refined keyframe poses.
         """
-        from gsslam.mapping.final_pass import refine_joint
+        return final_pass.refine_joint(self.map, iterations)
 
-        return refine_joint(self, iterations)
-
-    @torch.no_grad()
     def render_keyframe(self, frame_index: int) -> RenderOutput:
         """Render a keyframe (with its refined pose) at the mapper resolution."""
-        return self._render(self._kf(frame_index).T_cam_world(self.device))
+        return render_keyframe(self.map, frame_index)
 
     def keyframe_image(self, frame_index: int) -> np.ndarray:  # [h, w, 3] at the mapper resolution
-        return self._kf(frame_index).image.cpu().numpy()
+        return self.map.keyframe(frame_index).image.cpu().numpy()
 
     def rendered_depth(self, frame_index: int) -> np.ndarray:
         """Rendered z-depth [H, W] at full resolution, world units, NaN where the map is empty."""
@@ -258,7 +227,7 @@ class GaussianMapper:
         ok = (out.alpha > 0.95) & (out.depth > 0)
         vv, uu = (a.cpu().numpy() for a in torch.nonzero(ok, as_tuple=True))
         if len(vv) > n_points:
-            pick = self._rng.choice(len(vv), size=n_points, replace=False)
+            pick = self.map.rng.choice(len(vv), size=n_points, replace=False)
             vv, uu = vv[pick], uu[pick]
         depth = out.depth.cpu().numpy()[vv, uu].astype(np.float64)
         uv = np.stack([(uu + 0.5) / self.factor_x - 0.5, (vv + 0.5) / self.factor_y - 0.5], axis=1)
@@ -266,19 +235,13 @@ class GaussianMapper:
 
     def evaluate(self, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
         """PSNR / SSIM at the mapper resolution of keyframes and held-out frames with a pose."""
-        from gsslam.mapping.outputs import evaluate_map
-
         with torch_threads(self.cfg.num_threads):
-            return evaluate_map(self, frames, poses)
+            return outputs.evaluate_map(self.map, frames, poses)
 
     def save_ply(self, path: str | Path) -> int:
         """Write the map as a 3DGS PLY; returns the file size in bytes."""
-        from gsslam.mapping.outputs import save_map_ply
-
-        return save_map_ply(self.model, path)
+        return outputs.save_map_ply(self.map.model, path)
 
     def render_keyframe_panels(self, out_dir: str | Path, n: int = 4) -> list[Path]:
         """Write ``n`` PNGs, input | render | depth (turbo colour map), for keyframes spread over the run."""
-        from gsslam.mapping.outputs import keyframe_panels
-
-        return keyframe_panels(self, out_dir, n)
+        return outputs.keyframe_panels(self.map, out_dir, n)

@@ -1,18 +1,17 @@
-"""Outputs of a :class:`gsslam.mapping.mapper.GaussianMapper`: image metrics, PLY, keyframe panels."""
+"""Outputs of a map (:class:`gsslam.mapping.state.MapState`): image metrics, PLY, keyframe panels."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from gsslam.eval.image_metrics import psnr, ssim
+from gsslam.io.ply import GaussianPly, write_ply
 from gsslam.mapping.gaussians import GaussianModel
+from gsslam.mapping.state import MapState, render_keyframe, render_pose
 from gsslam.types import Frame
-
-if TYPE_CHECKING:
-    from gsslam.mapping.mapper import GaussianMapper
 
 
 def _resize_image(img: np.ndarray, w: int, h: int) -> np.ndarray:
@@ -30,22 +29,20 @@ def depth_colormap(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [H, W
     return dc
 
 
-def evaluate_map(mapper: GaussianMapper, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
+def evaluate_map(state: MapState, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
     """PSNR / SSIM (gsslam.eval.image_metrics) of renders vs images resized to the mapper resolution."""
-    from gsslam.eval.image_metrics import psnr, ssim
-
-    w, h = mapper.intrinsics.width, mapper.intrinsics.height
+    w, h = state.intrinsics.width, state.intrinsics.height
     res: dict[str, list] = {"keyframes": [], "other": []}
     per_frame = {}
     for fr in frames:
         if fr.index not in poses:
             continue
-        out = mapper.render_pose(poses[fr.index])
+        out = render_pose(state, poses[fr.index])
         img = _resize_image(fr.image.astype(np.float32), w, h)
         ren = out.color.clamp(0, 1).cpu().numpy()
         p, s = psnr(ren, img), ssim(ren, img)
         per_frame[fr.index] = p
-        res["keyframes" if fr.index in mapper.keyframe_indices else "other"].append((p, s))
+        res["keyframes" if fr.index in state.keyframes else "other"].append((p, s))
     stats: dict = {"per_frame_psnr": per_frame, "width": w, "height": h}
     for key, vals in res.items():
         stats[f"n_{key}"] = len(vals)
@@ -56,8 +53,6 @@ def evaluate_map(mapper: GaussianMapper, frames: list[Frame], poses: dict[int, n
 
 def save_map_ply(model: GaussianModel, path: str | Path) -> int:
     """Write ``model`` as a 3DGS PLY (unit quaternions); returns the file size in bytes."""
-    from gsslam.io.ply import GaussianPly, write_ply
-
     m = model.detached().to("cpu")
     g = GaussianPly(
         means=m.means.numpy(),
@@ -69,18 +64,18 @@ def save_map_ply(model: GaussianModel, path: str | Path) -> int:
     return write_ply(path, g)
 
 
-def keyframe_panels(mapper: GaussianMapper, out_dir: str | Path, n: int = 4) -> list[Path]:
+def keyframe_panels(state: MapState, out_dir: str | Path, n: int = 4) -> list[Path]:
     """``n`` PNGs ``input | render | depth`` at the mapper resolution, keyframes spread over the run."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    order = mapper.keyframe_indices
+    order = state.order
     if not order or n <= 0:
         return []
     picks = sorted({order[int(i)] for i in np.linspace(0, len(order) - 1, min(n, len(order)))})
     paths = []
     for idx in picks:
-        out = mapper.render_keyframe(idx)
-        img = (mapper.keyframe_image(idx) * 255).astype(np.uint8)
+        out = render_keyframe(state, idx)
+        img = (state.keyframe(idx).image.cpu().numpy() * 255).astype(np.uint8)
         ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
         dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
         p = out_dir / f"keyframe_{idx:06d}.png"

@@ -8,7 +8,6 @@ pose, or the accepted pose-only refinement). See docs/mapping.md, "Pose refineme
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
 
 import torch
 
@@ -16,9 +15,7 @@ from gsslam.config import MapperConfig
 from gsslam.mapping import losses as L
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.rasterize import RenderOutput
-
-if TYPE_CHECKING:
-    from gsslam.mapping.mapper import GaussianMapper
+from gsslam.mapping.state import MapState, render
 
 _log = logging.getLogger(__name__)
 
@@ -48,21 +45,21 @@ def pose_loss(
     return loss + pose_prior(cfg, kf, prior_weight) if prior else loss
 
 
-def refine_pose(mapper: GaussianMapper, kf: Keyframe, iterations: int) -> float:
+def refine_pose(state: MapState, kf: Keyframe, iterations: int) -> float:
     """Pose-only refinement of ``kf`` against the frozen map; returns the last loss.
 
     The best delta is kept only when it lowers the data loss by ``pose_min_gain`` (relative);
     otherwise the given pose stands (an imperfect map must not pull a good pose away).
     """
-    cfg = mapper.cfg
+    cfg = state.cfg
     start = kf.delta.detach().clone()
     kf.delta = start.clone().requires_grad_(True)
     opt = torch.optim.Adam([kf.delta], lr=cfg.lr_pose_init)
-    m = mapper.model.detached()
+    m = state.model.detached()
     first = best = value = float("nan")
     best_delta = start
     for _ in range(max(0, iterations)):
-        out = mapper._render(kf.T_cam_world(mapper.device), m)
+        out = render(state, kf.T_cam_world(state.device), m)
         data = pose_loss(cfg, out, kf, prior=False)
         value = float(data.detach())
         if first != first:  # nan: the first evaluation is at the given pose

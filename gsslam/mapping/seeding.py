@@ -9,32 +9,29 @@ pixel footprint.
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
 
 import torch
 
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import Keyframe, fill_depth
-
-if TYPE_CHECKING:
-    from gsslam.mapping.mapper import GaussianMapper
+from gsslam.mapping.state import MapState, render
 
 _log = logging.getLogger(__name__)
 
 
 @torch.no_grad()
-def seed_gaussians(mapper: GaussianMapper, kf: Keyframe) -> int:
-    """Add Gaussians for the unmapped pixels of ``kf`` to ``mapper.model``; returns how many."""
-    cfg = mapper.cfg
+def seed_gaussians(state: MapState, kf: Keyframe) -> int:
+    """Add Gaussians for the unmapped pixels of ``kf`` to ``state.model``; returns how many."""
+    cfg = state.cfg
     h, w = kf.depth.shape
     stride = max(1, cfg.init_stride)
-    unmapped = torch.ones(h, w, dtype=torch.bool, device=mapper.device)
-    if len(mapper.model):
-        out = mapper._render(kf.T_cam_world(mapper.device))
+    unmapped = torch.ones(h, w, dtype=torch.bool, device=state.device)
+    if len(state.model):
+        out = render(state, kf.T_cam_world(state.device))
         in_front = torch.isfinite(kf.depth) & (kf.depth < 0.7 * out.depth)
         unmapped = (out.alpha < cfg.unmapped_alpha) | in_front
     sel = torch.zeros_like(unmapped)
-    oy, ox = (int(v) for v in mapper._rng.integers(0, stride, size=2))
+    oy, ox = (int(v) for v in state.rng.integers(0, stride, size=2))
     sel[oy::stride, ox::stride] = True
     sel &= unmapped
     vv, uu = torch.nonzero(sel, as_tuple=True)
@@ -43,22 +40,22 @@ def seed_gaussians(mapper: GaussianMapper, kf: Keyframe) -> int:
     z = fill_depth(kf.depth)[vv, uu]
     ok = torch.isfinite(z) & (z > 0)
     vv, uu, z = vv[ok], uu[ok], z[ok]
-    K = mapper.intrinsics
+    K = state.intrinsics
     x = (uu.float() - K.cx) / K.fx * z
     y = (vv.float() - K.cy) / K.fy * z
     p_cam = torch.stack([x, y, z], dim=-1)
-    T_wc = torch.linalg.inv(kf.T_cam_world(mapper.device))
+    T_wc = torch.linalg.inv(kf.T_cam_world(state.device))
     p_world = p_cam @ T_wc[:3, :3].T + T_wc[:3, 3]
     scales = z / K.fx * stride * 0.6
     new = GaussianModel.from_points(
         p_world, kf.image[vv, uu], scales, kf.submap_id, kf.index, opacity=cfg.init_opacity
     )
-    room = cfg.max_gaussians - len(mapper.model)
+    room = cfg.max_gaussians - len(state.model)
     if room <= 0:
         _log.warning("Gaussian cap %d reached; keyframe %d adds nothing", cfg.max_gaussians, kf.index)
         return 0
     if len(new) > room:
-        new = new.select(torch.randperm(len(new), generator=mapper._gen)[:room].to(mapper.device))
-    mapper.model = mapper.model.cat(new)
-    mapper.state = mapper.strategy.grow_state(mapper.state, len(new))
+        new = new.select(torch.randperm(len(new), generator=state.gen)[:room].to(state.device))
+    state.model = state.model.cat(new)
+    state.densify_state = state.strategy.grow_state(state.densify_state, len(new))
     return len(new)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import torch
 
@@ -20,12 +19,10 @@ from gsslam.mapping import losses as L
 from gsslam.mapping.keyframes import Keyframe, torch_threads
 from gsslam.mapping.pose_refine import pose_loss
 from gsslam.mapping.rasterize import RenderOutput
-
-if TYPE_CHECKING:
-    from gsslam.mapping.mapper import GaussianMapper
+from gsslam.mapping.state import MapState, render
 
 
-def optimize_window(mapper: GaussianMapper, iterations: int | None = None) -> dict:
+def optimize_window(state: MapState, iterations: int | None = None) -> dict:
     """Adam over the window's keyframes (plus revisits of older ones), then densify/prune; returns stats.
 
     Steps alternate between the newest keyframe and a random one of the window; a share
@@ -33,11 +30,11 @@ def optimize_window(mapper: GaussianMapper, iterations: int | None = None) -> di
     regions seen earlier do not degrade. Only the newest ``pose_window`` keyframes (never the very
     first, the gauge) get joint pose refinement.
     """
-    cfg, order, rng = mapper.cfg, mapper._order, mapper._rng
+    cfg, order, rng = state.cfg, state.order, state.rng
     iters = cfg.iterations if iterations is None else int(iterations)
     win = order[-cfg.window :]
-    if not win or len(mapper.model) == 0 or iters <= 0:
-        return {"iterations": 0, "num_gaussians": len(mapper.model)}
+    if not win or len(state.model) == 0 or iters <= 0:
+        return {"iterations": 0, "num_gaussians": len(state.model)}
     old = order[: -len(win)]
     pose_kfs = [i for i in win[-max(0, cfg.pose_window) :] if i != order[0]] if cfg.pose_refinement else []
     if cfg.pose_window <= 0:
@@ -50,13 +47,15 @@ def optimize_window(mapper: GaussianMapper, iterations: int | None = None) -> di
 
     t0 = time.perf_counter()
     with torch_threads(cfg.num_threads):
-        first, last = adam_steps(mapper, iters, pick, pose_kfs, win)
-        active = torch.isin(mapper.model.keyframe_id, torch.tensor(win, device=mapper.device))
-        mapper.model, mapper.state, dstats = mapper.strategy.step(mapper.model, mapper.state, active=active)
-    return run_stats(mapper, iters, t0, first, last, **dstats)
+        first, last = adam_steps(state, iters, pick, pose_kfs, win)
+        active = torch.isin(state.model.keyframe_id, torch.tensor(win, device=state.device))
+        state.model, state.densify_state, dstats = state.strategy.step(
+            state.model, state.densify_state, active=active
+        )
+    return run_stats(state, iters, t0, first, last, **dstats)
 
 
-def run_stats(mapper: GaussianMapper, iters: int, t0: float, first, last, **extra) -> dict:
+def run_stats(state: MapState, iters: int, t0: float, first, last, **extra) -> dict:
     """The stats dict every optimisation pass returns (time since ``t0``, step PSNRs, map size)."""
     dt = time.perf_counter() - t0
     return {
@@ -65,13 +64,13 @@ def run_stats(mapper: GaussianMapper, iters: int, t0: float, first, last, **extr
         "ms_per_iteration": 1000 * dt / max(iters, 1),
         "psnr_first": first,
         "psnr_last": last,
-        "num_gaussians": len(mapper.model),
+        "num_gaussians": len(state.model),
         **extra,
     }
 
 
 def adam_steps(
-    mapper: GaussianMapper,
+    state: MapState,
     iters: int,
     pick: Callable[[int], int],
     pose_kfs: list[int],
@@ -89,10 +88,10 @@ def adam_steps(
     exponentially to ``decay`` x their start over the steps. ``pose_prior_weight`` overrides
     ``lambda_pose_prior`` for the poses' anchor prior, ``lambda_flow`` the flow loss weight.
     """
-    cfg, kfs = mapper.cfg, mapper._kfs
-    params = {k: v.detach().clone().requires_grad_(True) for k, v in mapper.model.params().items()}
+    cfg, kfs = state.cfg, state.keyframes
+    params = {k: v.detach().clone().requires_grad_(True) for k, v in state.model.params().items()}
     for k, v in params.items():
-        setattr(mapper.model, k, v)
+        setattr(state.model, k, v)
     lrs = {
         "means": cfg.lr_means,
         "quats": cfg.lr_quats,
@@ -111,7 +110,7 @@ def adam_steps(
     first = last = None
     for it in range(iters):
         idx = pick(it)
-        loss, psnr_val = step_loss(mapper, kfs[idx], idx in pose_kfs, win, pose_prior_weight, lambda_flow)
+        loss, psnr_val = step_loss(state, kfs[idx], idx in pose_kfs, win, pose_prior_weight, lambda_flow)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -122,12 +121,12 @@ def adam_steps(
         last = psnr_val
     for i in pose_kfs:
         kfs[i].delta = kfs[i].delta.detach()
-    mapper.model = mapper.model.detached()
+    state.model = state.model.detached()
     return first, last
 
 
 def step_loss(
-    mapper: GaussianMapper,
+    state: MapState,
     kf: Keyframe,
     pose: bool,
     win: list[int],
@@ -138,9 +137,9 @@ def step_loss(
 
     ``lambda_flow`` overrides ``cfg.lambda_flow`` (the final pass uses ``final_lambda_flow``).
     """
-    cfg, m, dev = mapper.cfg, mapper.model, mapper.device
+    cfg, m, dev = state.cfg, state.model, state.device
     w_flow = cfg.lambda_flow if lambda_flow is None else lambda_flow
-    out = mapper._render(kf.T_cam_world(dev, with_delta=True))
+    out = render(state, kf.T_cam_world(dev, with_delta=True))
     loss = L.color_loss(out.color, kf.image, cfg.lambda_ssim)
     unit = kf.median_depth if cfg.depth_scale_free else 1.0
     loss = loss + cfg.lambda_depth * L.inverse_depth_l1(
@@ -148,18 +147,18 @@ def step_loss(
     )
     if cfg.lambda_depth_normal > 0:
         loss = loss + cfg.lambda_depth_normal * L.depth_normal_consistency(
-            out.depth, out.normal, mapper.K, mask=out.alpha.detach() > 0.5
+            out.depth, out.normal, state.K, mask=out.alpha.detach() > 0.5
         )
     loss = loss + cfg.lambda_scale * L.scale_regularizer(m.log_scales)
     if pose:
         loss = loss + pose_loss(cfg, out, kf, prior_weight=pose_prior_weight)
     # GaussianFlow: projected motion of the Gaussians vs measured flow, for pairs starting here
     err = None
-    for (a, b), (flow, valid) in mapper._flows.items():
+    for (a, b), (flow, valid) in state.flows.items():
         if a != kf.index or b not in win or w_flow <= 0:
             continue
-        kb = mapper._kfs[b]
-        uv_b = project(mapper.K, m.means, kb.T_cam_world(dev, with_delta=b in win and kb.delta.requires_grad))
+        kb = state.keyframes[b]
+        uv_b = project(state.K, m.means, kb.T_cam_world(dev, with_delta=b in win and kb.delta.requires_grad))
         vis = visible(out)
         fl, e, _ = L.flow_loss(
             out.means2d,
@@ -180,7 +179,7 @@ def step_loss(
             e = L.sample_image(diff[..., None], out.means2d.detach())[:, 0]
             err = torch.where(vis, e, torch.full_like(e, float("nan")))
         radius = torch.where(visible(out), out.radii.float(), torch.zeros_like(err))
-        mapper.strategy.update_state(mapper.state, err, radius)
+        state.strategy.update_state(state.densify_state, err, radius)
         psnr_val = float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
     return loss, psnr_val
 

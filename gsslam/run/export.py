@@ -62,7 +62,7 @@ def _readme(fmt: str, run_dir: Path, units: str, n_images: int, n_points: int) -
 def _load_run(run_dir: Path, need_map: bool):
     from gsslam.io.ply import read_ply
     from gsslam.io.trajectory import read_tum
-    from gsslam.mapping.render_run import load_intrinsics
+    from gsslam.run.render import load_intrinsics
 
     for name in ("keyframes.tum", "intrinsics.yaml"):
         if not (run_dir / name).is_file():

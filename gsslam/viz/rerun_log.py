@@ -55,8 +55,8 @@ def record_run(run_dir: str | Path, out_rrd: str | Path, max_gaussians: int | No
     """
     rr = _import_rerun()
     from gsslam.io.trajectory import read_tum
-    from gsslam.mapping.render_run import load_intrinsics
     from gsslam.run.keyframes import KEYFRAME_DIR, find_keyframe_images
+    from gsslam.run.render import load_intrinsics
 
     run_dir, out_rrd = Path(run_dir), Path(out_rrd)
     if not (run_dir / "trajectory.tum").is_file():

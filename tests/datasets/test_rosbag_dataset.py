@@ -51,7 +51,7 @@ def test_bag_frames_equal_the_folder_frames(tum_frames, tmp_path, kind, compress
 def test_run_on_bag_gives_the_same_trajectory_as_on_the_folder(bundled_tum, ros1_bag, tmp_path):
     pytest.importorskip("gsslam.graph.submap_graph")
     from gsslam.config import load_config
-    from gsslam.pipeline import run_sequence
+    from gsslam.run.sequence import run_sequence
 
     cfg = load_config(None, ["mapper.enabled=false", "loop.enabled=false"], mode="rgbd")
     run_sequence(bundled_tum, "tum", cfg, tmp_path / "folder", max_frames=N, progress=False)

@@ -2,14 +2,26 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+from pathlib import Path
+
 import gtsam
 import numpy as np
 import pytest
 
 from factors import make_point_factor
 from gsslam.graph.backend import Backend
-from gsslam.graph.examples import load_stereo_vo, perturb_poses, run_stereo_vo
 from gsslam.graph.keys import keyframe_key, user_key
+
+_spec = importlib.util.spec_from_file_location(
+    "swap_in_sensors", Path(__file__).parents[2] / "examples" / "swap_in_sensors.py"
+)
+_example = sys.modules[_spec.name] = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_example)  # examples/ is runnable scripts, not a package
+load_stereo_vo = _example.load_stereo_vo
+perturb_poses = _example.perturb_poses
+run_stereo_vo = _example.run_stereo_vo
 
 
 @pytest.fixture(scope="module")

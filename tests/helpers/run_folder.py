@@ -11,8 +11,8 @@ import yaml
 from gsslam.geometry import make_T, so3_exp
 from gsslam.io.ply import GaussianPly, write_ply
 from gsslam.io.trajectory import write_tum
-from gsslam.mapping.render_run import save_intrinsics
 from gsslam.run.keyframes import timestamp_name
+from gsslam.run.render import save_intrinsics
 from gsslam.types import CameraIntrinsics, Trajectory
 
 

@@ -11,7 +11,7 @@ import torch
 from gsslam.config import MapperConfig
 from gsslam.geometry import make_T, so3_exp
 from gsslam.mapping.mapper import GaussianMapper, MapperError
-from gsslam.mapping.render_run import render_run, save_intrinsics
+from gsslam.run.render import render_run, save_intrinsics
 
 CFG = MapperConfig(max_side=80, iterations=20, window=4, device="cpu", pose_refinement=True)
 
@@ -147,11 +147,11 @@ def test_flow_weight_override_switches_the_flow_term(teddy_frames):
     m.add_keyframe(f1, f1.T_world_cam_gt, 0)
     flow = np.full((480, 640, 2), 40.0, np.float32)  # far from the true motion: a large flow cost
     m.add_flow(f0.index, f1.index, flow, np.ones((480, 640), bool))
-    kf, win = m._kfs[f0.index], m.keyframe_indices
+    kf, win = m.map.keyframes[f0.index], m.keyframe_indices
     with torch.no_grad():
-        base = float(step_loss(m, kf, False, win, lambda_flow=0.0)[0])
-        default = float(step_loss(m, kf, False, win)[0])  # cfg.lambda_flow = 1
-        strong = float(step_loss(m, kf, False, win, lambda_flow=2.0)[0])
+        base = float(step_loss(m.map, kf, False, win, lambda_flow=0.0)[0])
+        default = float(step_loss(m.map, kf, False, win)[0])  # cfg.lambda_flow = 1
+        strong = float(step_loss(m.map, kf, False, win, lambda_flow=2.0)[0])
     assert default > base + 0.1
     assert strong - base == pytest.approx(2.0 * (default - base), rel=1e-4)
 

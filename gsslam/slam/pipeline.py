@@ -2,7 +2,7 @@
 
 Per frame (:meth:`Pipeline.process`):
 
-1. **Track** the frame against the latest keyframe with one dense flow (``tracking.py``); blank
+1. **Track** the frame against the latest keyframe with one dense flow (``frontend.tracking``); blank
    frames, failed flow and failed PnP are tracking-loss events.
 2. **Keyframe?** by flow magnitude (``frontend.keyframes``). A non-keyframe keeps its flow matches
    to the keyframe; its pose is PnP against the keyframe's depth (sensor depth for RGB-D, the
@@ -10,27 +10,26 @@ Per frame (:meth:`Pipeline.process`):
 3. Every K new keyframes: **encode a submap** (``frontend`` encoder; frame 0 is the previous
    submap's last keyframe with its refined depth), **add it to the graph** (submap alignment,
    scale drift, adjacency points), add **flow correspondences** between each new keyframe and
-   its predecessors in the previous submap, and run one **iSAM2 update**.
+   its predecessors in the previous submap (:mod:`gsslam.slam.cross_flow`), run one **iSAM2 update**,
+   close loops (:mod:`gsslam.slam.loop_stage`) and feed the Gaussian map (:mod:`gsslam.slam.map_stage`).
 4. At the end: encode the tail (fewer than K keyframes), **batch refinement**, poses for all frames.
 
 Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the current chain of
 submaps and starts a new one at the current frame (its own graph; its world placement is the
-last tracked pose). Outputs are written by :mod:`gsslam.run_outputs`.
+last tracked pose). Outputs are written by :mod:`gsslam.run` (the pipeline writes no files).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from gsslam.config import Config
 from gsslam.errors import GsslamError
-from gsslam.geometry import sim3_scale
-from gsslam.tracking import (
+from gsslam.frontend.tracking import (
     FrameMatches,
     FrameTracker,
     interpolate_poses,
@@ -38,38 +37,17 @@ from gsslam.tracking import (
     sample_depth,
     solve_relative_pose,
 )
-from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
+from gsslam.geometry import sim3_scale
+from gsslam.slam.chains import Chain, ChainKeyframe, Event
+from gsslam.slam.cross_flow import CrossFlowFeed
+from gsslam.slam.loop_stage import LoopStage
+from gsslam.types import CameraIntrinsics, Frame
 
 log = logging.getLogger(__name__)
 
 
 class PipelineError(GsslamError):
     """The pipeline was fed inconsistent frames (e.g. changing image size)."""
-
-
-@dataclass
-class Event:
-    frame_index: int
-    kind: str  # "blank" | "flow" | "pnp" | "new_chain" | "encoder" | ...
-    detail: str = ""
-
-
-@dataclass
-class _Keyframe:
-    chain: int
-    submap: int  # the submap whose point map gives this keyframe's depth
-    position: int  # index inside that submap's frame_indices
-    depth: np.ndarray  # [h, w] point-map depth (submap units)
-
-
-@dataclass
-class Chain:
-    """Consecutive submaps linked through shared keyframes, optimised in one graph."""
-
-    graph: object
-    T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world
-    encodings: list[SubmapEncoding] = field(default_factory=list)
-    failed: bool = False  # an update threw: no further optimisation of this graph
 
 
 class Pipeline:
@@ -95,7 +73,7 @@ class Pipeline:
         self.chains: list[Chain] = []
         self.events: list[Event] = []
         self.timestamps: dict[int, float] = {}
-        self.keyframes: dict[int, _Keyframe] = {}
+        self.keyframes: dict[int, ChainKeyframe] = {}
         self.keyframe_order: list[int] = []
         self.pending: list[tuple[FrameMatches, int]] = []  # (matches to ref keyframe, chain id), mono
         self.relative: dict[int, tuple[int, np.ndarray]] = {}  # frame -> (ref keyframe, T_ref_cur), solved
@@ -106,16 +84,19 @@ class Pipeline:
         self.last_good = None
         self.last_pose: np.ndarray = np.eye(4)
         self.n_frames = 0
-        self.n_flow_factors = 0
         self.last_good: Frame | None = None  # last non-keyframe tracked successfully
-        self.map_stage = None  # gsslam.pipeline_mapping.MapStage when cfg.mapper.enabled
+        self.cross_flow = CrossFlowFeed(cfg, intrinsics, self.flow, self.rng)
+        self.map_stage = None  # gsslam.slam.map_stage.MapStage when cfg.mapper.enabled
         if cfg.mapper.enabled:
-            from gsslam.pipeline_mapping import MapStage
+            from gsslam.slam.map_stage import MapStage  # torch is imported only when the map is on
 
             self.map_stage = MapStage(cfg.mapper, intrinsics)
-        from gsslam.pipeline_loops import LoopStage
-
         self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
+
+    @property
+    def n_flow_factors(self) -> int:
+        """Flow factors added to the graphs so far (:class:`~gsslam.slam.cross_flow.CrossFlowFeed`)."""
+        return self.cross_flow.n_factors
 
     # ---- per frame ---------------------------------------------------------------------------
 
@@ -175,7 +156,7 @@ class Pipeline:
             return  # the scene comes back where it left: keep the chain
         self.lost += 1
         if self.lost >= self.cfg.pipeline.max_lost_frames:
-            self._close_chain()
+            self.close_chain()
             self.events.append(Event(frame.index, "new_chain", f"after {self.lost} lost frames"))
             self._start_chain(frame)
 
@@ -236,9 +217,11 @@ class Pipeline:
             for pos, idx in enumerate(enc.frame_indices):
                 if pos == 0 and idx in self.keyframes:
                     continue  # the shared frame keeps the depth of the submap it was made in
-                self.keyframes[idx] = _Keyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
+                self.keyframes[idx] = ChainKeyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
                 added.append(idx)
-            flows = self._add_cross_flow(chain, frames)
+            flows = self.cross_flow.add(
+                chain, self.chains, self.keyframes, self.prev_frames, frames, self.map_stage is not None
+            )
             chain.graph.update()
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
@@ -273,56 +256,19 @@ class Pipeline:
             self.events.append(Event(frames[-1].index, "mapper", str(e).splitlines()[0]))
             log.warning("mapper failed on submap %d: %s", sid, e)
 
-    def _add_cross_flow(self, chain: Chain, frames: list[Frame]) -> list:
-        """GaussianFlow: flow matches between new keyframes and their predecessors in the previous submap.
+    def close_chain(self) -> None:
+        """Encode the keyframes still waiting for a submap (the tail); the chain takes no more submaps.
 
-        Returns the checked flows ``(a, b, flow [H, W, 2], valid [H, W])`` for the mapper's flow loss.
+        :meth:`finish` calls it; a runner calls it first when it wants the poses before the batch
+        refinement. Calling it twice does nothing the second time.
         """
-        flows: list = []
-        if not self.prev_frames:
-            return flows
-        try:
-            from gsslam.frontend.correspondences import correspondences_from_flow
-        except ImportError:  # frontend without flow correspondences: submaps chain through shared frames only
-            log.warning("gsslam.frontend.correspondences is missing: no cross-submap flow factors")
-            return flows
-        from gsslam.frontend.flow import forward_backward_mask
-
-        sequence = self.prev_frames + frames[1:]  # keyframes in order; prev_frames[-1] is shared
-        first_new = len(self.prev_frames)
-        back = self.cfg.pipeline.cross_flow_back
-        for b in range(first_new, len(sequence)):
-            for a in range(max(0, b - back), first_new):
-                src, tgt = sequence[a], sequence[b]
-                fw = self.flow(src.image, tgt.image)
-                bw = self.flow(tgt.image, src.image)
-                valid = forward_backward_mask(fw, bw, self.cfg.flow.fb_threshold_px)
-                kf = self.keyframes[src.index]
-                if not (self.chains[kf.chain].encodings[kf.submap].confidence[kf.position] > 0).any():
-                    continue  # a zero-parallax placeholder depth (mono) is no geometry to project
-                depth = cv2.resize(
-                    kf.depth, (self.intrinsics.width, self.intrinsics.height), interpolation=cv2.INTER_NEAREST
-                )
-                corr = correspondences_from_flow(
-                    src, tgt, fw, valid, depth, self.cfg.pipeline.flow_points, self.rng
-                )
-                if (
-                    len(corr) >= 10
-                    and chain.graph.add_flow(corr, self.intrinsics.K, src_submap=kf.submap) is not None
-                ):
-                    self.n_flow_factors += 1
-                if self.map_stage is not None:
-                    flows.append((src.index, tgt.index, fw, valid))
-        return flows
-
-    def _close_chain(self) -> None:
         if len(self.window) > 1:
             self._encode_window()
         self.window = []
 
     def finish(self) -> None:
         """Encode the tail, batch-refine every chain's graph."""
-        self._close_chain()
+        self.close_chain()
         if self.cfg.graph.final_batch_refinement:
             for chain in self.chains:
                 if chain.encodings and not chain.failed:
@@ -394,10 +340,3 @@ def frame_depth(frame: Frame | None) -> np.ndarray:
     if frame is None or frame.depth is None:
         raise PipelineError("RGB-D mode needs depth images; use --mode mono for this dataset")
     return frame.depth
-
-
-def run_sequence(path, dataset_name, cfg, out, max_frames=None, progress=True, **dataset_kwargs):
-    """Run a whole sequence and write its outputs; see :func:`gsslam.run_outputs.run_sequence`."""
-    from gsslam.run_outputs import run_sequence as _run
-
-    return _run(path, dataset_name, cfg, out, max_frames=max_frames, progress=progress, **dataset_kwargs)

@@ -21,6 +21,8 @@ import cv2
 import numpy as np
 
 from gsslam.errors import GsslamError
+from gsslam.frontend.pose_estimation import pnp
+from gsslam.geometry import so3_exp, so3_log
 from gsslam.types import CameraIntrinsics, Frame
 
 log = logging.getLogger(__name__)
@@ -57,7 +59,7 @@ def is_blank(frame: Frame, min_std: float) -> bool:
     return float(np.std(g)) < min_std
 
 
-def sample_matches(
+def grid_flow_matches(
     ref: Frame,
     cur: Frame,
     flow: np.ndarray,  # [H, W, 2] ref -> cur
@@ -65,7 +67,11 @@ def sample_matches(
     depth_ref: np.ndarray | None = None,  # [H, W]; when given, only pixels with valid depth
     border: int = 8,
 ) -> FrameMatches:
-    """Matches on a regular grid of ``ref`` pixels whose flow target lands inside ``cur``."""
+    """Matches on a regular grid of ``ref`` pixels whose flow target lands inside ``cur``.
+
+    A grid (not random pixels, as :func:`gsslam.frontend.pose_estimation.random_flow_matches`) spreads
+    the matches evenly for the health checks and PnP of every frame.
+    """
     h, w = flow.shape[:2]
     step = max(2, int(np.sqrt((h - 2 * border) * (w - 2 * border) / max(n_points, 1))))
     vv, uu = np.mgrid[border : h - border : step, border : w - border : step]
@@ -123,35 +129,31 @@ def solve_relative_pose(
     min_inlier_ratio: float,
     threshold_px: float = 2.0,
 ) -> tuple[np.ndarray | None, int]:
-    """``T_ref_cur`` [4, 4] by PnP RANSAC + LM refinement, or ``(None, inliers)`` when unreliable."""
+    """``T_ref_cur`` [4, 4] by PnP RANSAC + LM refinement, or ``(None, inliers)`` when unreliable.
+
+    One RANSAC (100 iterations) and one refinement on its inliers, cheap enough for every frame:
+    :func:`~gsslam.frontend.pose_estimation.pnp` with ``reselect=False``.
+    """
     ok = np.isfinite(depth_ref) & (depth_ref > 0)
-    if ok.sum() < max(min_inliers, 6):
-        return None, 0
-    uv_ref, uv_cur, z = m.uv_ref[ok], m.uv_cur[ok], depth_ref[ok]
+    uv_ref, z = m.uv_ref[ok], depth_ref[ok]
     X = np.stack([(uv_ref[:, 0] - K[0, 2]) / K[0, 0] * z, (uv_ref[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
-    found, rvec, tvec, inl = cv2.solvePnPRansac(
+    res = pnp(
         X,
-        uv_cur,
+        m.uv_cur[ok],
         K,
-        None,
-        iterationsCount=100,
-        reprojectionError=threshold_px,
-        confidence=0.999,
-        flags=cv2.SOLVEPNP_EPNP,
+        threshold_px,
+        min_inliers,
+        iterations=100,
+        min_inlier_ratio=min_inlier_ratio,
+        reselect=False,
     )
-    n_in = 0 if inl is None else len(inl)
-    if not found or n_in < min_inliers or n_in < min_inlier_ratio * len(X):
-        return None, n_in
-    idx = inl.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(X[idx], uv_cur[idx], K, None, rvec, tvec)
-    R_cur_ref, _ = cv2.Rodrigues(rvec)
-    T_cur_ref = np.eye(4)
-    T_cur_ref[:3, :3] = R_cur_ref
-    T_cur_ref[:3, 3] = tvec.ravel()
+    if res.T_tgt_src is None:
+        return None, res.inliers
+    R_cur_ref, t_cur_ref = res.T_tgt_src[:3, :3], res.T_tgt_src[:3, 3]
     T_ref_cur = np.eye(4)
     T_ref_cur[:3, :3] = R_cur_ref.T
-    T_ref_cur[:3, 3] = -R_cur_ref.T @ tvec.ravel()
-    return T_ref_cur, n_in
+    T_ref_cur[:3, 3] = -R_cur_ref.T @ t_cur_ref
+    return T_ref_cur, res.inliers
 
 
 class FrameTracker:
@@ -182,7 +184,7 @@ class FrameTracker:
             return None, None, TrackStatus(False, "blank")
         flow = self.flow(self.ref.image, frame.image)
         depth = self.ref.depth if self.use_depth else None
-        m = sample_matches(self.ref, frame, flow, self.n_points, depth_ref=depth)
+        m = grid_flow_matches(self.ref, frame, flow, self.n_points, depth_ref=depth)
         pc = photo_consistency(self.ref, frame, m)
         med = float(np.median(np.hypot(flow[::8, ::8, 0], flow[::8, ::8, 1])))
         if pc < self.min_photo_consistency or len(m.uv_ref) < 20:
@@ -198,8 +200,6 @@ def interpolate_poses(
     """Poses of ``wanted`` frames missing from ``poses``, interpolated in time between the nearest
     posed frames before and after (linear translation, geodesic rotation); frames outside the posed
     time span get none (no extrapolation). The fallback when PnP of a tracked frame fails."""
-    from gsslam.geometry import so3_exp, so3_log
-
     known = sorted((timestamps[i], i) for i in poses if i in timestamps)
     if len(known) < 2:
         return {}

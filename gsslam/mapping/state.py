@@ -1,0 +1,85 @@
+"""The mapper's state, explicit: everything the map stages read and write, in one object.
+
+Like gsplat's strategy + state dict, the stages are plain functions of a :class:`MapState`:
+:func:`gsslam.mapping.seeding.seed_gaussians`, :func:`gsslam.mapping.pose_refine.refine_pose`,
+:func:`gsslam.mapping.window.optimize_window`, :func:`gsslam.mapping.final_pass.finalize` /
+:func:`~gsslam.mapping.final_pass.refine_joint` and :mod:`gsslam.mapping.outputs`. They replace
+``state.model`` and ``state.densify_state`` as they optimise, grow and prune the map;
+:class:`gsslam.mapping.mapper.GaussianMapper` is the facade that owns one state and calls them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from gsslam.config import MapperConfig
+from gsslam.geometry import split_sim3
+from gsslam.mapping.densify import DensifyStrategy
+from gsslam.mapping.gaussians import GaussianModel
+from gsslam.mapping.keyframes import Keyframe, MapperError
+from gsslam.mapping.rasterize import RenderOutput
+from gsslam.mapping.rasterize import render as rasterize
+from gsslam.types import CameraIntrinsics
+
+
+@dataclass
+class MapState:
+    """The Gaussian map, its densification state, the keyframes and flows it is optimised on."""
+
+    cfg: MapperConfig
+    device: torch.device
+    intrinsics: CameraIntrinsics  # at the mapper resolution
+    K: torch.Tensor  # [3, 3] of ``intrinsics``
+    strategy: DensifyStrategy
+    model: GaussianModel
+    densify_state: dict[str, torch.Tensor]  # per-Gaussian error statistics (``strategy``'s state)
+    keyframes: dict[int, Keyframe] = field(default_factory=dict)
+    order: list[int] = field(default_factory=list)  # keyframe indices in insertion order
+    flows: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = field(default_factory=dict)
+    # (a, b) -> (flow [h, w, 2] a -> b at the mapper resolution, valid [h, w] bool)
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    gen: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
+
+    def keyframe(self, index: int) -> Keyframe:
+        if index not in self.keyframes:
+            raise MapperError(f"frame {index} is not a mapper keyframe (known: {self.order[-5:]}...)")
+        return self.keyframes[index]
+
+
+def render(state: MapState, T_cam_world: torch.Tensor, model: GaussianModel | None = None) -> RenderOutput:
+    """Render ``model`` (default: the state's) from ``T_cam_world`` [4, 4] at the mapper resolution."""
+    m = state.model if model is None else model
+    return rasterize(
+        m.means,
+        m.quats,
+        m.scales,
+        m.opacities,
+        m.rgb,
+        T_cam_world,
+        state.K,
+        state.intrinsics.width,
+        state.intrinsics.height,
+    )
+
+
+def render_pose(state: MapState, T_world_cam: np.ndarray) -> RenderOutput:
+    """Render the map (no gradients) from a (rigid or Sim(3)) ``T_world_cam`` [4, 4]."""
+    R, t, _ = split_sim3(np.asarray(T_world_cam, dtype=np.float64))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R.T, -R.T @ t
+    with torch.no_grad():
+        return render(state, torch.as_tensor(T, dtype=torch.float32, device=state.device))
+
+
+@torch.no_grad()
+def render_keyframe(state: MapState, index: int) -> RenderOutput:
+    """Render a keyframe (with its refined pose) at the mapper resolution."""
+    return render(state, state.keyframe(index).T_cam_world(state.device))
+
+
+def refined_poses(state: MapState) -> dict[int, np.ndarray]:
+    """``T_world_cam`` [4, 4] of every keyframe with its refinement applied (Sim(3) scale kept)."""
+    return {i: state.keyframes[i].refined_pose() for i in state.order}

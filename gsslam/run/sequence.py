@@ -1,0 +1,130 @@
+"""Run a whole sequence through :class:`gsslam.slam.pipeline.Pipeline` and write the results.
+
+Files in ``out`` (written by :mod:`gsslam.run.outputs`): ``trajectory.tum`` (every frame that has a
+pose, dataset timestamps), ``keyframes.tum``, ``config.yaml`` (the resolved config), ``metrics.json``
+(ATE when the dataset has ground truth: Sim(3)-aligned for mono, SE(3) for RGB-D; counts, wall time,
+FPS, peak RSS, tracking-loss events) and ``trajectory.png``. They are written in a ``finally`` so that
+an interrupted run (Ctrl-C) still leaves the trajectory estimated so far.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gsslam.config import Config, save_config
+from gsslam.datasets import open_dataset
+from gsslam.datasets.prefetch import FramePrefetcher
+from gsslam.run.outputs import write_outputs
+from gsslam.slam.pipeline import Pipeline
+
+log = logging.getLogger(__name__)
+
+DATASETS_WITH_OPTIONAL_DEPTH = ("tum", "7scenes", "rosbag")  # loaders that take ``with_depth``
+
+ProgressCallback = Callable[[int, int, float], None]  # (frames done, total, frames per second)
+
+
+@dataclass
+class RunResult:
+    out: Path
+    metrics: dict = field(default_factory=dict)
+
+    def summary_rows(self) -> list[tuple[str, str]]:
+        m = self.metrics
+        rows = [
+            ("frames", f"{m.get('frames_posed', 0)} / {m.get('frames', 0)} posed"),
+            ("keyframes", str(m.get("keyframes", 0))),
+            ("submaps", f"{m.get('submaps', 0)} in {m.get('chains', 0)} chain(s)"),
+            ("tracking events", str(len(m.get("events", [])))),
+            ("wall time", f"{m.get('wall_time_s', 0.0):.1f} s ({m.get('fps', 0.0):.1f} FPS)"),
+            ("peak RSS", f"{m.get('peak_rss_mb', 0.0):.0f} MB"),
+        ]
+        mp = m.get("mapper") or {}
+        if mp.get("empty"):
+            rows.append(("map", "empty: 0 Gaussians (no keyframe had usable depth; docs/pipeline.md)"))
+        elif "psnr_keyframes" in mp:
+            rows.append(
+                (
+                    "map",
+                    f"{mp['num_gaussians']} Gaussians, {mp['size_mb']:.1f} MB, "
+                    f"PSNR {mp['psnr_keyframes']:.1f} dB keyframes / {mp['psnr_other']:.1f} dB held-out "
+                    f"({mp['width']}x{mp['height']})",
+                )
+            )
+        lp = m.get("loop_closure") or {}
+        if lp.get("enabled"):
+            rows.append(
+                ("loops", f"{lp['detected']} detected, {lp['accepted']} accepted, {lp['rejected']} rejected")
+            )
+        for key, label in (
+            ("ate", "ATE RMSE (all frames)"),
+            ("ate_keyframes", "ATE RMSE (keyframes)"),
+            ("ate_before_batch", "ATE RMSE (before batch)"),
+        ):
+            if m.get(key):
+                rows.append(
+                    (label, f"{100 * m[key]['rmse_m']:.2f} cm ({m[key]['align']}, {m[key]['pairs']} poses)")
+                )
+        if m.get("interrupted"):
+            rows.append(("interrupted", "yes: outputs hold the poses estimated so far"))
+        rows.append(("outputs", str(self.out)))
+        return rows
+
+
+def run_sequence(
+    path: str | Path,
+    dataset_name: str,
+    cfg: Config,
+    out: str | Path,
+    max_frames: int | None = None,
+    progress: bool | ProgressCallback = True,
+    **dataset_kwargs: Any,
+) -> RunResult:
+    """Open the dataset ``dataset_name`` at ``path`` and run :func:`run_dataset` on it.
+
+    ``progress``: a callback ``(done, total, fps)`` called after every frame (the CLI draws a
+    progress bar with it); ``True``/``False`` without a callback report nothing (the library never prints).
+    """
+    if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
+        # a monocular run reads no depth, so frames that only lack a depth image are kept
+        dataset_kwargs.setdefault("with_depth", False)
+    ds = open_dataset(dataset_name, path, **dataset_kwargs)
+    callback = progress if callable(progress) else None
+    return run_dataset(ds, cfg, Path(out), max_frames=max_frames, progress=callback)
+
+
+def run_dataset(
+    ds, cfg: Config, out: Path, max_frames: int | None = None, progress: ProgressCallback | None = None
+) -> RunResult:
+    """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, out / "config.yaml")
+    n = len(ds) if max_frames is None else min(len(ds), max_frames)
+    pipe = Pipeline(cfg, ds.intrinsics)
+    result = RunResult(out)
+    t0 = time.perf_counter()
+    done, interrupted = 0, True
+    before_batch: dict[int, np.ndarray] = {}
+    try:
+        with FramePrefetcher(ds, range(n)) as frames:  # decoding overlaps tracking; same order as ds[i]
+            for frame in frames:
+                pipe.process(frame)
+                done += 1
+                if progress is not None:
+                    progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
+        pipe.close_chain()  # the tail's submap, so that the poses before the batch refinement are complete
+        before_batch = pipe.frame_poses()
+        pipe.finish()
+        interrupted = False
+    finally:
+        wall = time.perf_counter() - t0
+        result.metrics = write_outputs(pipe, ds, out, wall, done, interrupted, before_batch)
+    return result

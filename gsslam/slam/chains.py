@@ -1,0 +1,41 @@
+"""Chains of submaps, the pipeline's keyframe records and its tracking events.
+
+A chain is a run of consecutive submaps linked through shared keyframes and optimised in one graph
+(:class:`gsslam.graph.submap_graph.SubmapGraph`). Tracking loss closes a chain; the next one starts
+at the current frame, placed in the output world at the last tracked pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gsslam.types import SubmapEncoding
+
+
+@dataclass
+class Event:
+    frame_index: int
+    kind: str  # "blank" | "flow" | "pnp" | "new_chain" | "encoder" | ...
+    detail: str = ""
+
+
+@dataclass
+class ChainKeyframe:
+    """Where a keyframe's geometry lives: the submap whose point map gives its depth."""
+
+    chain: int
+    submap: int  # the submap whose point map gives this keyframe's depth
+    position: int  # index inside that submap's frame_indices
+    depth: np.ndarray  # [h, w] point-map depth (submap units)
+
+
+@dataclass
+class Chain:
+    """Consecutive submaps linked through shared keyframes, optimised in one graph."""
+
+    graph: object
+    T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world
+    encodings: list[SubmapEncoding] = field(default_factory=list)
+    failed: bool = False  # an update threw: no further optimisation of this graph

@@ -48,6 +48,7 @@ BUILTIN_LOADERS: dict[str, str] = {
     "kitti": "gsslam.datasets.kitti:KittiOdometryDataset",
     "7scenes": "gsslam.datasets.sevenscenes:SevenScenesDataset",
     "images": "gsslam.datasets.images:ImageSequenceDataset",
+    "rosbag": "gsslam.datasets.rosbag:RosbagDataset",
     "synthetic": "gsslam.datasets.synthetic.dataset:SyntheticDataset",
 }
 

@@ -5,4 +5,6 @@
 - :mod:`~gsslam.run.outputs`: the files of a run (trajectories, metrics, plots, map outputs).
 - :mod:`~gsslam.run.render`: re-render a saved map along a saved trajectory (``gsslam render``).
 - :mod:`~gsslam.run.evaluate`: evaluate two trajectory files (``gsslam eval``).
+- :mod:`~gsslam.run.keyframes`: the keyframe images a run keeps (``keyframes/<timestamp>.jpg``).
+- :mod:`~gsslam.run.export`: a run as COLMAP / nerfstudio / INRIA files (``gsslam export``).
 """

@@ -7,4 +7,7 @@
 - :mod:`~gsslam.run.evaluate`: evaluate two trajectory files (``gsslam eval``).
 - :mod:`~gsslam.run.keyframes`: the keyframe images a run keeps (``keyframes/<timestamp>.jpg``).
 - :mod:`~gsslam.run.export`: a run as COLMAP / nerfstudio / INRIA files (``gsslam export``).
+- :mod:`~gsslam.run.batch`: many sequences x configurations (``gsslam batch``), with
+  :mod:`~gsslam.run.manifest` (what to run), :mod:`~gsslam.run.run_metrics` (one run folder -> one row)
+  and :mod:`~gsslam.run.results` (the table, pure); built-in suites in ``run/suites/``.
 """

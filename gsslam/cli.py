@@ -88,7 +88,9 @@ def eval_cmd(
 @app.command("run")
 def run_cmd(
     path: Annotated[Path, typer.Argument(help="Sequence folder (or video file for --dataset images).")],
-    dataset: Annotated[str, typer.Option(help="tum | euroc | kitti | 7scenes | images | synthetic")] = "tum",
+    dataset: Annotated[
+        str, typer.Option(help="tum | euroc | kitti | 7scenes | images | rosbag | synthetic")
+    ] = "tum",
     mode: Annotated[Optional[str], typer.Option(help="mono | rgbd (default: the config's, mono)")] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/latest"),
     config: Annotated[Optional[Path], typer.Option(help="YAML config file.")] = None,
@@ -98,17 +100,26 @@ def run_cmd(
     max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
     intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    dataset_arg: Annotated[
+        Optional[list[str]],
+        typer.Option("--dataset-arg", help="Loader option KEY=VALUE (YAML value), e.g. image_topic=/cam/rgb"),
+    ] = None,
+    viz: Annotated[
+        Optional[str], typer.Option(help="Also record a viewer file: rerun (OUT/run.rrd).")
+    ] = None,
 ) -> None:
     """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT."""
     from gsslam.config import load_config
     from gsslam.run.sequence import run_sequence
 
+    if viz not in (None, "rerun"):
+        raise typer.BadParameter(f"unknown viewer {viz!r}; the only one is 'rerun'", param_hint="--viz")
     cfg = load_config(config, set_ or [], mode=mode)
-    ds_kwargs = {}
+    ds_kwargs = _dataset_args(dataset_arg or [])
     if intrinsics is not None:
-        if dataset not in ("images", "tum"):
+        if dataset not in ("images", "tum", "rosbag"):
             raise typer.BadParameter(
-                f"--intrinsics is for --dataset images or tum; {dataset} reads its own calibration",
+                f"--intrinsics is for --dataset images, tum or rosbag; {dataset} reads its own calibration",
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics
@@ -132,6 +143,90 @@ def run_cmd(
         if bar is not None:
             bar.close()
     _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
+    if viz == "rerun":
+        from gsslam.viz.rerun_log import record_run
+
+        typer.echo(f"rerun recording: {record_run(out, out / 'run.rrd')}")
+
+
+def _dataset_args(items: list[str]) -> dict:
+    import yaml
+
+    kwargs = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise typer.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--dataset-arg")
+        kwargs[key.strip()] = yaml.safe_load(value) if value.strip() else None
+    return kwargs
+
+
+@app.command("export")
+def export_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run`.")],
+    fmt: Annotated[str, typer.Option("--format", help="colmap | nerfstudio | inria")] = "colmap",
+    out: Annotated[Optional[Path], typer.Option(help="Export folder (default RUN/export_FORMAT).")] = None,
+    images: Annotated[bool, typer.Option(help="Copy the keyframe images into OUT/images.")] = False,
+    sh_degree: Annotated[int, typer.Option(help="SH degree of the INRIA PLY (f_rest_* zero-padded).")] = 3,
+    iteration: Annotated[int, typer.Option(help="N of point_cloud/iteration_N (INRIA).")] = 30000,
+) -> None:
+    """Export a run's keyframe cameras and map for COLMAP, nerfstudio/gsplat or the INRIA 3DGS tools."""
+    from gsslam.run.export import export_run
+
+    path = export_run(run_dir, fmt, out, images=images, sh_degree=sh_degree, iteration=iteration)
+    typer.echo(f"wrote {fmt} export to {path} (docs/exports.md)")
+
+
+@app.command("view")
+def view_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run`.")],
+    rrd: Annotated[
+        Optional[Path], typer.Option(help="Recording to write/open (default RUN/run.rrd).")
+    ] = None,
+    spawn: Annotated[bool, typer.Option(help="Open the rerun viewer on the recording.")] = True,
+) -> None:
+    """Record a run folder for the rerun viewer (needs the `viz` extra) and open it."""
+    from gsslam.viz.rerun_log import open_viewer, record_run
+
+    rrd = rrd or run_dir / "run.rrd"
+    if not rrd.is_file():
+        record_run(run_dir, rrd)
+    typer.echo(f"rerun recording: {rrd}")
+    if spawn:
+        open_viewer(rrd)
+
+
+DEMO_SEQUENCE = "data/rgbd_dataset_freiburg3_teddy_60"  # in a clone of gsslam
+
+
+@app.command("demo")
+def demo_cmd(
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
+    data: Annotated[
+        Optional[Path], typer.Option(help=f"TUM sequence (default: {DEMO_SEQUENCE} of the clone).")
+    ] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
+    ] = None,
+    max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+) -> None:
+    """RGB-D SLAM on the bundled TUM fr3/teddy frames, then ATE/RPE against its ground truth."""
+    from gsslam.eval.report import evaluate_files
+
+    if data is None:
+        here, checkout = Path.cwd(), Path(__file__).resolve().parents[1]
+        data = next((p / DEMO_SEQUENCE for p in (here, checkout) if (p / DEMO_SEQUENCE).is_dir()), None)
+        if data is None:
+            raise typer.BadParameter(
+                f"{DEMO_SEQUENCE} not found; run from a clone of gsslam or pass --data", param_hint="--data"
+            )
+    run_cmd(data, "tum", "rgbd", out, None, set_, max_frames, None, progress)
+    report = evaluate_files(
+        data / "groundtruth.txt", out / "trajectory.tum", align="se3", plot=out / "ate.png"
+    )
+    _echo_table(report.table_rows(), title="trajectory vs ground truth (align=se3)")
+    typer.echo(f"outputs in {out}/: trajectory.tum, metrics.json, map.ply, renders/, ate.png")
 
 
 @app.command("render")

@@ -90,6 +90,7 @@ class GraphConfig:
 class MapperConfig:
     enabled: bool = True
     device: str = "auto"  # "auto" | "cpu" | "cuda"
+    rasterizer: str = "auto"  # "auto" | "c" | "torch" | "gsplat" (docs/rasterizer.md); c: fail if not built
     max_side: int = 160  # mapper resolution: images downscaled so max(H, W) <= this
     iterations: int = 60  # optimisation steps per map update
     window: int = 8  # keyframes in the sliding window

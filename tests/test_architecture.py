@@ -133,7 +133,10 @@ FORBIDDEN = {
     **{base: {"slam", "run", "cli", "bench", "frontend", "graph", "mapping", "loop", "datasets", "viz"}
        for base in ("config", "types", "geometry", "imaging", "errors")},
 }  # fmt: skip
-PURE = {"eval": {"eval", "types", "geometry", "imaging", "errors"}, "io": {"io", "types", "geometry", "errors"}}
+PURE = {
+    "eval": {"eval", "types", "geometry", "imaging", "errors"},
+    "io": {"io", "types", "geometry", "errors"},
+}
 
 
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith("gsslam.")))

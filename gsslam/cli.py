@@ -70,7 +70,13 @@ def eval_cmd(
     est: Annotated[Path, typer.Argument(help="Estimated trajectory file.")],
     align: Annotated[str, typer.Option(help="Alignment before ATE: sim3 | se3 | none.")] = "sim3",
     fmt: Annotated[str, typer.Option("--format", help="File format of both files: tum | kitti.")] = "tum",
-    max_dt: Annotated[float, typer.Option(help="Max timestamp difference for association (s).")] = 0.02,
+    max_dt: Annotated[
+        float,
+        typer.Option(
+            help="Max timestamp difference for association (s). evo's --t_max_diff defaults to 0.01; "
+            "pass --t_max_diff 0.02 to evo for the same pairs."
+        ),
+    ] = 0.02,
     rpe_delta: Annotated[int, typer.Option(help="RPE frame delta.")] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     plot: Annotated[
@@ -96,7 +102,9 @@ def eval_cmd(
 @app.command("run")
 def run_cmd(
     path: Annotated[Path, typer.Argument(help="Sequence folder (or video file for --dataset images).")],
-    dataset: Annotated[str, typer.Option(help="tum | euroc | kitti | 7scenes | images | synthetic")] = "tum",
+    dataset: Annotated[
+        str, typer.Option(help="tum | euroc | kitti | 7scenes | images | rosbag | synthetic")
+    ] = "tum",
     mode: Annotated[Optional[str], typer.Option(help="mono | rgbd (default: the config's, mono)")] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/latest"),
     config: Annotated[Optional[Path], typer.Option(help="YAML config file.")] = None,
@@ -109,6 +117,13 @@ def run_cmd(
     overwrite: Annotated[
         bool, typer.Option(help="Replace an older run in OUT (removes only gsslam's own files).")
     ] = False,
+    dataset_arg: Annotated[
+        Optional[list[str]],
+        typer.Option("--dataset-arg", help="Loader option KEY=VALUE (YAML value), e.g. image_topic=/cam/rgb"),
+    ] = None,
+    viz: Annotated[
+        Optional[str], typer.Option(help="Also record a viewer file: rerun (OUT/run.rrd).")
+    ] = None,
 ) -> None:
     """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT.
 
@@ -117,12 +132,14 @@ def run_cmd(
     from gsslam.config import load_config
     from gsslam.run.sequence import run_sequence
 
+    if viz not in (None, "rerun"):
+        raise typer.BadParameter(f"unknown viewer {viz!r}; the only one is 'rerun'", param_hint="--viz")
     cfg = load_config(config, set_ or [], mode=mode)
-    ds_kwargs = {}
+    ds_kwargs = _dataset_args(dataset_arg or [])
     if intrinsics is not None:
-        if dataset not in ("images", "tum"):
+        if dataset not in ("images", "tum", "rosbag"):
             raise typer.BadParameter(
-                f"--intrinsics is for --dataset images or tum; {dataset} reads its own calibration",
+                f"--intrinsics is for --dataset images, tum or rosbag; {dataset} reads its own calibration",
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics
@@ -154,6 +171,91 @@ def run_cmd(
         for bar in bars:
             bar.close()
     _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
+    if viz == "rerun":
+        from gsslam.viz.rerun_log import record_run
+
+        typer.echo(f"rerun recording: {record_run(out, out / 'run.rrd')}")
+
+
+def _dataset_args(items: list[str]) -> dict:
+    import yaml
+
+    kwargs = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise typer.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--dataset-arg")
+        kwargs[key.strip()] = yaml.safe_load(value) if value.strip() else None
+    return kwargs
+
+
+@app.command("export")
+def export_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run`.")],
+    fmt: Annotated[str, typer.Option("--format", help="colmap | nerfstudio | inria")] = "colmap",
+    out: Annotated[Optional[Path], typer.Option(help="Export folder (default RUN/export_FORMAT).")] = None,
+    images: Annotated[bool, typer.Option(help="Copy the keyframe images into OUT/images.")] = False,
+    sh_degree: Annotated[int, typer.Option(help="SH degree of the INRIA PLY (f_rest_* zero-padded).")] = 3,
+    iteration: Annotated[int, typer.Option(help="N of point_cloud/iteration_N (INRIA).")] = 30000,
+) -> None:
+    """Export a run's keyframe cameras and map for COLMAP, nerfstudio/gsplat or the INRIA 3DGS tools."""
+    from gsslam.run.export import export_run
+
+    path = export_run(run_dir, fmt, out, images=images, sh_degree=sh_degree, iteration=iteration)
+    typer.echo(f"wrote {fmt} export to {path} (docs/exports.md)")
+
+
+@app.command("view")
+def view_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run`.")],
+    rrd: Annotated[
+        Optional[Path], typer.Option(help="Recording to write/open (default RUN/run.rrd).")
+    ] = None,
+    spawn: Annotated[bool, typer.Option(help="Open the rerun viewer on the recording.")] = True,
+) -> None:
+    """Record a run folder for the rerun viewer (needs the `viz` extra) and open it."""
+    from gsslam.viz.rerun_log import open_viewer, record_run
+
+    rrd = rrd or run_dir / "run.rrd"
+    if not rrd.is_file():
+        record_run(run_dir, rrd)
+    typer.echo(f"rerun recording: {rrd}")
+    if spawn:
+        open_viewer(rrd)
+
+
+DEMO_SEQUENCE = "data/rgbd_dataset_freiburg3_teddy_60"  # in a clone of gsslam
+
+
+@app.command("demo")
+def demo_cmd(
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
+    data: Annotated[
+        Optional[Path], typer.Option(help=f"TUM sequence (default: {DEMO_SEQUENCE} of the clone).")
+    ] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
+    ] = None,
+    max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+) -> None:
+    """RGB-D SLAM on the bundled TUM fr3/teddy frames, then ATE/RPE against its ground truth."""
+    from gsslam.eval.report import evaluate_files
+
+    if data is None:
+        here, checkout = Path.cwd(), Path(__file__).resolve().parents[1]
+        data = next((p / DEMO_SEQUENCE for p in (here, checkout) if (p / DEMO_SEQUENCE).is_dir()), None)
+        if data is None:
+            raise typer.BadParameter(
+                f"{DEMO_SEQUENCE} not found; run from a clone of gsslam or pass --data", param_hint="--data"
+            )
+    # the demo's own folder: a previous demo in it is replaced (only gsslam's files)
+    run_cmd(data, "tum", "rgbd", out, None, set_, max_frames, None, progress, overwrite=True)
+    report = evaluate_files(
+        data / "groundtruth.txt", out / "trajectory.tum", align="se3", plot=out / "ate.png"
+    )
+    _echo_table(report.table_rows(), title="trajectory vs ground truth (align=se3)")
+    typer.echo(f"outputs in {out}/: trajectory.tum, metrics.json, map.ply, renders/, ate.png")
 
 
 @app.command("render")
@@ -179,6 +281,88 @@ def _int_list(text: str, option: str) -> list[int]:
     if any(v <= 0 for v in values):
         raise typer.BadParameter(f"every value must be positive, got {text!r}", param_hint=option)
     return values
+
+
+def _run_batch(
+    manifest: str, out: Optional[Path], jobs: int, address: Optional[str], max_frames: Optional[int],
+    data_root: Optional[list[Path]],
+) -> None:  # fmt: skip
+    from gsslam.run.batch import BatchOptions, run_batch
+    from gsslam.run.manifest import load_manifest
+
+    m = load_manifest(manifest)
+    opts = BatchOptions(
+        out=out or Path("runs") / "batch" / m.name, jobs=jobs, address=address, max_frames=max_frames,
+        data_roots=tuple(data_root or ()),
+    )  # fmt: skip
+
+    def done(rec: dict) -> None:
+        err = f": {rec.get('error')}" if rec.get("error") else ""
+        typer.echo(f"  {rec.get('run_id')}: {rec.get('status')}{err}", err=True)
+
+    result = run_batch(m, opts, on_done=done)
+    typer.echo((opts.out / "results.md").read_text())
+    typer.echo(
+        f"{len(result.executed)} run(s) executed, {len(result.reused)} reused; "
+        f"tables in {opts.out}/results.{{md,csv,json}}, plot {opts.out}/ate.png"
+    )
+
+
+@app.command("batch")
+def batch_cmd(
+    manifest: Annotated[
+        Optional[str], typer.Argument(help="Manifest YAML, or a built-in suite name (quick, standard, long).")
+    ] = None,
+    jobs: Annotated[
+        int, typer.Option(help="Runs at once (> 1 runs on a local Ray; needs gsslam\\[batch]).")
+    ] = 1,
+    address: Annotated[
+        Optional[str],
+        typer.Option(help="Ray cluster, e.g. ray://HOST:10001 (out and data on shared storage)."),
+    ] = None,
+    out: Annotated[
+        Optional[Path], typer.Option(help="Batch folder (default runs/batch/<manifest name>).")
+    ] = None,
+    max_frames: Annotated[Optional[int], typer.Option(help="Cap every sequence at N frames.")] = None,
+    data_root: Annotated[
+        Optional[list[Path]], typer.Option(help="Extra folder to find relative data paths in (repeatable).")
+    ] = None,
+    compare: Annotated[
+        Optional[tuple[Path, Path]], typer.Option(help="Print B - A per sequence for two batch folders A B.")
+    ] = None,
+) -> None:
+    """Run every sequence x configuration of a manifest; resume; write one table (md, csv, json) + plot.
+
+    Each run gets its own folder OUT/runs/<sequence>__<config>; runs already complete are skipped, so
+    re-running a batch finishes what is missing. A failed run is a row with its error. Data paths are
+    relative to --data-root, $GSSLAM_DATA, data/ and ../shared/data. See docs/evaluation.md.
+    """
+    if compare is not None:
+        from gsslam.run.batch import read_rows
+        from gsslam.run.results import compare_markdown, compare_rows
+
+        typer.echo(compare_markdown(compare_rows(read_rows(compare[0]), read_rows(compare[1]))))
+        return
+    if manifest is None:
+        raise typer.BadParameter("give a manifest (or a suite name), or --compare A B", param_hint="MANIFEST")
+    _run_batch(manifest, out, jobs, address, max_frames, data_root)
+
+
+@bench_app.command("accuracy")
+def bench_accuracy(
+    suite: Annotated[str, typer.Option(help="Built-in suite: quick | standard | long.")] = "quick",
+    jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam\\[batch]).")] = 1,
+    address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,
+    max_frames: Annotated[Optional[int], typer.Option(help="Cap every sequence at N frames.")] = None,
+    data_root: Annotated[
+        Optional[list[Path]], typer.Option(help="Extra folder to find the suite's data in (repeatable).")
+    ] = None,
+) -> None:
+    """Accuracy table of a built-in suite: `gsslam batch SUITE` (see docs/evaluation.md)."""
+    from gsslam.run.manifest import suite_path
+
+    _run_batch(str(suite_path(suite)), out, jobs, address, max_frames, data_root)
 
 
 def _bench(name: str, **kwargs) -> None:

@@ -94,6 +94,7 @@ class GraphConfig:
 class MapperConfig:
     enabled: bool = True
     device: str = "auto"  # "auto" | "cpu" | "cuda"
+    rasterizer: str = "auto"  # "auto" | "c" | "torch" | "gsplat" (docs/rasterizer.md); c: fail if not built
     max_side: int = 160  # mapper resolution: images downscaled so max(H, W) <= this
     iterations: int = 60  # optimisation steps per map update
     window: int = 8  # keyframes in the sliding window
@@ -395,6 +396,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.wildfire_threshold": NONNEG,
     "graph.batch_max_iterations": _ge(0),
     "mapper.device": ("auto", "cpu", "cuda"),
+    "mapper.rasterizer": ("auto", "c", "torch", "gsplat", "fast"),  # gsslam.mapping.rasterize.BACKENDS
     "mapper.max_side": _ge(16),
     "mapper.iterations": _ge(0),
     "mapper.window": _ge(1),

@@ -35,5 +35,5 @@ def test_cli_help_lists_every_command():
     out = subprocess.run(
         [sys.executable, "-m", "gsslam", "--help"], capture_output=True, text=True, check=True
     )
-    for cmd in ("run", "eval", "render", "bench"):
+    for cmd in ("run", "demo", "eval", "render", "bench", "batch", "export", "view"):
         assert cmd in out.stdout

@@ -12,8 +12,7 @@ from gsslam.datasets.synthetic import SyntheticDataset
 from gsslam.io.trajectory import read_tum
 from gsslam.run.sequence import run_dataset
 
-pytest.importorskip("gsslam.graph.submap_graph")
-pytest.importorskip("gsslam.frontend.correspondences")
+pytestmark = pytest.mark.slow  # end-to-end runs
 
 FAST = ["mapper.enabled=false", "loop.enabled=false"]
 
@@ -36,7 +35,7 @@ def test_rgbd_on_bundled_tum(bundled_tum, tmp_path):
         assert (tmp_path / name).is_file(), name
     assert m["frames"] == 40 and m["frames_posed"] >= 38 and m["submaps"] >= 2
     assert m["ate"]["align"] == "se3"
-    assert m["ate"]["rmse_m"] < 0.025  # measured ~1 cm
+    assert m["ate"]["rmse_m"] < 0.01  # measured 4.3 mm
     traj = read_tum(tmp_path / "trajectory.tum")
     assert len(traj) == m["frames_posed"]
     assert np.all(np.diff(traj.timestamps) > 0)
@@ -53,7 +52,8 @@ def test_synthetic_scene_exact_truth(mode, tmp_path):
     assert m["submaps"] >= 2  # the tail is encoded too
     assert m["ate"]["align"] == ("sim3" if mode == "mono" else "se3")
     path = ds.ground_truth().path_length()
-    assert m["ate"]["rmse_m"] < 0.01 * path  # measured 0.12% (rgbd) of the path
+    bound = {"rgbd": 0.004, "mono": 0.0025}[mode]  # measured 0.16 % (rgbd), 0.08 % (mono) of the path
+    assert m["ate"]["rmse_m"] < bound * path, (m["ate"], path)
 
 
 class _Spliced:

@@ -10,6 +10,8 @@ from gsslam.datasets.base import open_dataset
 from gsslam.datasets.revisit import RevisitDataset
 from gsslam.run.sequence import run_dataset
 
+pytestmark = pytest.mark.slow  # end-to-end runs
+
 
 def test_revisit_dataset_mirrors_frames_and_ground_truth(bundled_tum):
     base = open_dataset("tum", bundled_tum)

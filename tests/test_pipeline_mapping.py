@@ -6,14 +6,16 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from gsslam.config import load_config
 from gsslam.datasets.base import open_dataset
 from gsslam.io.ply import read_ply
 from gsslam.io.trajectory import read_tum
+from gsslam.mapping import rasterize_cpu
 from gsslam.run.sequence import run_dataset
 
-torch = pytest.importorskip("torch")
+pytestmark = pytest.mark.slow  # end-to-end runs
 
 # small map: 80x60, few steps (CI time); PSNR bounds below were measured at these settings
 SMALL = [
@@ -76,6 +78,7 @@ def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
     assert mp["psnr_keyframes"] > 23.5
     assert mp["psnr_other"] > 23.0 and mp["n_other"] >= 15
     assert mp["depth_prior_factors"] == 0  # depth_feedback is off by default
+    assert mp["rasterizer_backend"] == ("c" if rasterize_cpu.available(torch.zeros(1)) else "torch")
     assert m["ate"]["rmse_m"] < 0.02
 
 

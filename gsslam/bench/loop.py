@@ -16,9 +16,10 @@ import time
 import numpy as np
 
 from gsslam.config import LoopConfig
+from gsslam.datasets.synthetic import block_room, make_submaps
+from gsslam.datasets.synthetic.trajectories import outward_circle
 from gsslam.geometry import make_T, so3_exp
 from gsslam.loop.detector import LoopDetector
-from gsslam.loop.synthetic import TexturedRoom, circle_trajectory, make_submaps
 
 POOL_SUBMAPS = 12  # distinct submaps (two turns of the circle)
 TIMED = 5  # detect() calls timed per size
@@ -36,7 +37,7 @@ def _grow(det: LoopDetector, pool, poses: dict, n: int, rng: np.random.Generator
 def run(sizes: list[int], mode: str = "rgbd") -> dict:
     cfg = LoopConfig()
     rng = np.random.default_rng(0)
-    pool = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(6 * POOL_SUBMAPS + 1, 2.0), mono=False)
+    pool = make_submaps(block_room(seed=1), outward_circle(6 * POOL_SUBMAPS + 1, 2.0), mono=False)
     out: dict = {
         "mode": mode,
         "config": {

@@ -108,7 +108,7 @@ def _backends() -> list[tuple[str, str]]:
 
     out = [("torch", "cpu")]
     if rasterize_cpu.available(torch.zeros(1)):
-        out.append(("fast", "cpu"))
+        out.append(("c", "cpu"))
     if torch.cuda.is_available():
         out.append(("torch", "cuda"))
         try:

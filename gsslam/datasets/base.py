@@ -48,7 +48,8 @@ BUILTIN_LOADERS: dict[str, str] = {
     "kitti": "gsslam.datasets.kitti:KittiOdometryDataset",
     "7scenes": "gsslam.datasets.sevenscenes:SevenScenesDataset",
     "images": "gsslam.datasets.images:ImageSequenceDataset",
-    "synthetic": "gsslam.datasets.synthetic:SyntheticDataset",
+    "rosbag": "gsslam.datasets.rosbag:RosbagDataset",
+    "synthetic": "gsslam.datasets.synthetic.dataset:SyntheticDataset",
 }
 
 _REGISTRY: dict[str, Callable[..., Dataset]] = {}  # loaders registered at run time (user loaders)

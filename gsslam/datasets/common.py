@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from gsslam.datasets.base import DatasetError
-from gsslam.geometry import make_T, quat_to_rot
+from gsslam.io.trajectory import TrajectoryIOError, read_tum
 from gsslam.types import CameraIntrinsics, Trajectory, TypesError
 
 
@@ -91,23 +91,18 @@ def associate_nearest(query: np.ndarray, ref: np.ndarray, max_dt: float) -> np.n
     return out
 
 
-def pose_from_tum(values: np.ndarray) -> np.ndarray:  # [7] tx ty tz qx qy qz qw -> [4, 4]
-    return make_T(quat_to_rot(values[3:7]), values[:3])
-
-
 def read_tum_trajectory(path: Path, what: str = "trajectory") -> Trajectory:
-    """A TUM-format file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments) as a Trajectory."""
-    rows = read_rows(path, what=what)
-    if not rows:
-        raise DatasetFormatError(f"{what} {path} has no poses")
-    vals = np.stack([parse_floats(f, 8, path, n) for n, f in rows])
-    check_increasing(vals[:, 0], path, [n for n, _ in rows])
-    norms = np.linalg.norm(vals[:, 4:8], axis=1)
-    if np.any(norms < 1e-6):
-        n = rows[int(np.argmax(norms < 1e-6))][0]
-        raise DatasetFormatError(f"{path}:{n}: quaternion (qx qy qz qw) is zero; fix or delete this row")
-    poses = np.stack([pose_from_tum(v[1:]) for v in vals])
-    return Trajectory(vals[:, 0], poses, meta={"source": str(path)})
+    """A TUM-format file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments) as a Trajectory, read by
+    the one TUM parser (``gsslam.io.trajectory.read_tum``); timestamps must be strictly increasing."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetFormatError(f"{what} is missing: {path}")
+    try:
+        traj = read_tum(path)
+    except TrajectoryIOError as e:
+        raise DatasetFormatError(f"{what}: {e}; fix the file or delete that row") from None
+    check_increasing(traj.timestamps, path)
+    return Trajectory(traj.timestamps, traj.poses, meta={"source": str(path)})
 
 
 class FrameGroundTruth:
@@ -177,13 +172,44 @@ def read_yaml_mapping(path: Path, what: str, keys: str) -> dict:
     return data
 
 
+# ROS names of OpenCV's k1 k2 p1 p2 [k3 ...] distortion
+OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
+
+
+def ros_camera_info_yaml(data: dict, path: Path | str) -> dict:
+    """``fx fy cx cy width height distortion`` from a ROS camera_info YAML (``camera_matrix.data``
+    row-major 3x3, ``distortion_model``, ``distortion_coefficients.data``, ``image_width/height``)."""
+    try:
+        K = [float(v) for v in data["camera_matrix"]["data"]]
+        dist = [float(v) for v in (data.get("distortion_coefficients") or {}).get("data") or ()]
+    except (KeyError, TypeError, ValueError) as e:
+        raise DatasetFormatError(
+            f"intrinsics file {path}: camera_matrix needs 'data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]' ({e})"
+        ) from None
+    if len(K) != 9:
+        raise DatasetFormatError(f"intrinsics file {path}: camera_matrix.data has {len(K)} values, not 9")
+    model = str(data.get("distortion_model") or "")
+    if model not in OPENCV_DISTORTION_MODELS and any(dist):
+        raise DatasetFormatError(
+            f"intrinsics file {path}: distortion_model '{model}' is not supported; "
+            f"use one of {', '.join(m for m in OPENCV_DISTORTION_MODELS if m)} or rectified images"
+        )
+    out = {"fx": K[0], "fy": K[4], "cx": K[2], "cy": K[5], "distortion": dist if any(dist) else []}
+    if "image_width" in data and "image_height" in data:
+        out.update(width=data["image_width"], height=data["image_height"])
+    return out
+
+
 def load_intrinsics_yaml(path: Path, width: int | None = None, height: int | None = None) -> CameraIntrinsics:
     """Intrinsics from a YAML file with ``fx, fy, cx, cy`` and optional ``distortion``, ``width``,
-    ``height``; the size falls back to ``width``/``height`` given here."""
+    ``height``, or a ROS camera_info YAML (:func:`ros_camera_info_yaml`); the size falls back to
+    ``width``/``height`` given here."""
     path = Path(path)
     if not path.is_file():
         raise DatasetFormatError(f"intrinsics file is missing: {path}")
     data = read_yaml_mapping(path, "intrinsics file", "fx, fy, cx, cy")
+    if "camera_matrix" in data:
+        data = ros_camera_info_yaml(data, path)
     missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
     if missing:
         raise DatasetFormatError(

@@ -5,8 +5,10 @@
   jumping backwards re-seeks).
 - Intrinsics, first that is given: ``intrinsics=CameraIntrinsics``; ``intrinsics_file=`` a YAML
   file with ``fx, fy, cx, cy`` and optional ``distortion: [k1, k2, p1, p2[, k3]]``, ``fps``,
-  ``width``, ``height`` (size defaults to the first image's); or the kwargs ``fx, fy, cx, cy``
-  (+ ``distortion``). Distorted images are undistorted once; frames carry the same K, no distortion.
+  ``width``, ``height`` (size defaults to the first image's), or a ROS camera_info YAML
+  (``camera_matrix.data``, ``distortion_coefficients.data``, ``image_width/height``); or the kwargs
+  ``fx, fy, cx, cy`` (+ ``distortion``). Distorted images are undistorted once; frames carry the same
+  K, no distortion.
 - Timestamps ``index / fps``: ``fps=`` kwarg, else the YAML's ``fps``, else the video's own rate,
   else 30.
 - No depth, no ground truth (``ground_truth()`` is ``None``).

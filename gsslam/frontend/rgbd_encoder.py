@@ -4,7 +4,8 @@ For each new keyframe i (at point-map resolution):
 
 1. frame-to-frame: dense flow i-1 -> i (forward-backward checked) gives 3D(i-1)-2D(i) matches;
    PnP RANSAC + LM gives ``T_i_{i-1}``; chaining gives ``T_0_i``;
-2. with ``encoder.rgbd_odometry=true`` (off by default): the PnP pose is refined by open3d's
+2. with ``encoder.rgbd_odometry=true`` (off by default; needs the optional extra
+   ``pip install 'gsslam[open3d]'``): the PnP pose is refined by open3d's
    hybrid RGB-D odometry (photometric + depth), and frame i is also registered directly against
    frame 0 starting from the chained pose; the direct pose replaces the chained one when both
    agree (else ``meta["direct_rejected"]``). On TUM fr3/teddy this made the local poses *worse*
@@ -42,8 +43,21 @@ FB_THRESHOLD_PX = 1.0  # at point-map resolution
 EDGE_CONFIDENCE = 0.3
 
 
+def _open3d():
+    """The open3d module, imported on demand: it is an optional extra, used only by the odometry."""
+    try:
+        import open3d
+    except (ImportError, OSError) as e:  # OSError: its wheel's system libraries (libusb-1.0) missing
+        raise EncoderError(
+            f"encoder.rgbd_odometry=true needs open3d, an optional extra ({e}): "
+            "pip install 'gsslam[open3d]' (on Debian/Ubuntu its wheel also needs "
+            "apt-get install libusb-1.0-0), or set encoder.rgbd_odometry=false"
+        ) from e
+    return open3d
+
+
 def _rgbd_image(img: np.ndarray, depth: np.ndarray):  # [h, w, 3], [h, w] -> open3d RGBDImage
-    import open3d as o3d
+    o3d = _open3d()
 
     gray = np.ascontiguousarray(img @ np.array([0.299, 0.587, 0.114], dtype=np.float32), dtype=np.float32)
     d = np.ascontiguousarray(np.nan_to_num(depth, nan=0.0), dtype=np.float32)
@@ -64,13 +78,7 @@ def rgbd_odometry(
     cfg: EncoderConfig,
 ) -> tuple[bool, np.ndarray]:
     """open3d hybrid RGB-D odometry: ``(success, T_tgt_src)`` (open3d returns source -> target)."""
-    try:
-        import open3d as o3d
-    except ImportError as e:  # pragma: no cover - open3d is a core dependency here
-        raise EncoderError(
-            "the rgbd encoder's odometry needs open3d: pip install open3d "
-            "(or set encoder.rgbd_odometry=false)"
-        ) from e
+    o3d = _open3d()
     pinhole = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
     option = o3d.pipelines.odometry.OdometryOption(
         iteration_number_per_pyramid_level=o3d.utility.IntVector([20, 10, 5]),
@@ -93,6 +101,8 @@ class RGBDEncoder:
     """Sub-track encoder for RGB-D input (metric units: metres)."""
 
     def __init__(self, cfg: EncoderConfig, flow: FlowEstimator, seed: int = 0) -> None:
+        if cfg.rgbd_odometry:
+            _open3d()  # fail at start-up, not at the second keyframe, when the extra is missing
         self.cfg = cfg
         self.flow = flow
         self.rng = np.random.default_rng(seed)

@@ -179,3 +179,27 @@ def read_ply(path: str | Path) -> GaussianPly:
         f_dc=col([f"f_dc_{i}" for i in range(3)]),
         f_rest=col(rest) if rest else np.zeros((n, 0), np.float32),
     )
+
+
+def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> int:
+    """A coloured point cloud PLY (``x y z`` float32, ``red green blue`` uint8) as read by Open3D and
+    nerfstudio's ``ply_file_path``; ``xyz`` [N, 3], ``rgb`` [N, 3] in 0..255. Returns the size in bytes."""
+    xyz = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+    rgb = np.asarray(rgb).reshape(-1, 3)
+    if len(rgb) != len(xyz):
+        raise PlyError(f"{len(xyz)} points but {len(rgb)} colours")
+    dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    data = np.zeros(len(xyz), dtype=dt)
+    for i, c in enumerate("xyz"):
+        data[c] = xyz[:, i]
+    for i, c in enumerate(("red", "green", "blue")):
+        data[c] = np.clip(np.round(rgb[:, i]), 0, 255)
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(xyz)}"]
+    header += ["property float x", "property float y", "property float z"]
+    header += ["property uchar red", "property uchar green", "property uchar blue", "end_header"]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(data.tobytes())
+    return path.stat().st_size

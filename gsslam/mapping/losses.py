@@ -1,4 +1,6 @@
-"""Mapping losses (SING3R-SLAM window optimization, GaussianFlow flow supervision) and image metrics.
+"""Mapping losses (SING3R-SLAM window optimization, GaussianFlow flow supervision).
+
+The SSIM term uses ``gsslam.imaging.ssim_map`` (the metric's implementation, full-size map).
 
 Every function is pure torch, differentiable, and takes an optional ``mask`` [H, W] (bool or float
 weights) that restricts the average to supervised pixels. An empty mask gives a zero loss that still
@@ -11,6 +13,8 @@ import math
 
 import torch
 import torch.nn.functional as F
+
+from gsslam.imaging import ssim_map
 
 
 def _masked_mean(x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
@@ -29,44 +33,6 @@ def l1(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None = None) -> to
     return _masked_mean((a - b).abs(), mask)
 
 
-def _gaussian_1d(size: int, sigma: float, device, dtype) -> torch.Tensor:
-    x = torch.arange(size, device=device, dtype=dtype) - (size - 1) / 2
-    g = torch.exp(-(x**2) / (2 * sigma**2))
-    return g / g.sum()
-
-
-def ssim_map(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Per-pixel SSIM (Wang et al. 2004) of images a, b [H, W, 3] in [0, 1] -> [H, W] (channel mean).
-
-    Gaussian window (separable, replicate padding); the five local moments are blurred in one pass.
-    """
-    c = a.shape[-1]
-    x = a.permute(2, 0, 1)
-    y = b.permute(2, 0, 1)
-    stack = torch.cat([x, y, x * x, y * y, x * y])[None]  # [1, 5c, H, W]
-    g = _gaussian_1d(window, sigma, a.device, a.dtype)
-    n = stack.shape[1]
-    pad = window // 2
-    blur = F.conv2d(
-        F.pad(stack, [pad, pad, 0, 0], mode="replicate"),
-        g.view(1, 1, 1, -1).expand(n, 1, 1, window),
-        groups=n,
-    )
-    blur = F.conv2d(
-        F.pad(blur, [0, 0, pad, pad], mode="replicate"), g.view(1, 1, -1, 1).expand(n, 1, window, 1), groups=n
-    )[0]
-    mu_x, mu_y, xx, yy, xy = blur.split(c)
-    sxx, syy, sxy = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
-    c1, c2 = 0.01**2, 0.03**2
-    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2))
-    return s.mean(0)
-
-
-def ssim(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """Mean SSIM of a, b [H, W, 3] (1 for identical images)."""
-    return _masked_mean(ssim_map(a, b), mask)
-
-
 def psnr(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """PSNR in dB of images in [0, 1]; a, b [H, W, 3]."""
     mse = _masked_mean((a - b) ** 2, mask)
@@ -82,7 +48,7 @@ def color_loss(
     """``(1 - lambda_ssim) * L1 + lambda_ssim * (1 - SSIM)`` (3DGS / SING3R colour term)."""
     loss = (1.0 - lambda_ssim) * l1(render, target, mask)
     if lambda_ssim > 0:
-        loss = loss + lambda_ssim * _masked_mean(1.0 - ssim_map(render, target), mask)
+        loss = loss + lambda_ssim * _masked_mean(1.0 - ssim_map(render, target).mean(-1), mask)
     return loss
 
 

@@ -39,7 +39,7 @@ from gsslam.mapping.densify import DensifyStrategy
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import MapperError, make_keyframe, resize, resolve_device, torch_threads
 from gsslam.mapping.pose_refine import refine_pose
-from gsslam.mapping.rasterize import RenderOutput
+from gsslam.mapping.rasterize import RenderOutput, resolve_backend
 from gsslam.mapping.seeding import seed_gaussians
 from gsslam.mapping.state import MapState, refined_poses, render_keyframe, render_pose
 from gsslam.mapping.window import optimize_window
@@ -78,10 +78,16 @@ class GaussianMapper:
             strategy=strategy,
             model=GaussianModel.empty(self.device),
             densify_state=strategy.initialize_state(0, self.device),
+            backend=resolve_backend(cfg.rasterizer, self.device),
         )
         self._submap_poses: dict[int, np.ndarray] = {}  # submap id -> T_world_submap the map follows
 
     # ------------------------------------------------------------------ properties
+    @property
+    def rasterizer_backend(self) -> str:
+        """``"c"`` | ``"torch"`` | ``"gsplat"``: what every render of this mapper uses (in metrics.json)."""
+        return self.map.backend
+
     @property
     def model(self) -> GaussianModel:
         return self.map.model

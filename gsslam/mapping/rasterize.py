@@ -4,9 +4,11 @@ Standard 3DGS maths (EWA splatting, front-to-back alpha compositing sorted by de
 docs/rasterizer.md for the exact rules. Gaussian rotations are quaternions in (w, x, y, z) order.
 
 Backends: ``"torch"`` (the pure-torch reference, :mod:`gsslam.mapping.rasterize_reference`),
-``"fast"`` (compiled CPU compositor with a hand-written backward, :mod:`gsslam.mapping.rasterize_cpu`;
-falls back to the reference when no C compiler is available), ``"gsplat"`` (CUDA, optional extra
-``cuda``) and ``"auto"`` (gsplat for CUDA tensors when installed, else fast).
+``"c"`` (compiled CPU compositor with a hand-written backward, :mod:`gsslam.mapping.rasterize_cpu`;
+``"fast"`` is its former name), ``"gsplat"`` (CUDA, optional extra ``cuda``) and ``"auto"`` (gsplat
+for CUDA tensors when installed, else c when its kernel is built, else torch). An explicitly named
+backend that cannot run raises :class:`RasterizerUnavailableError`; :func:`resolve_backend` tells
+beforehand which backend a request will use.
 """
 
 from __future__ import annotations
@@ -23,13 +25,62 @@ from gsslam.mapping.rasterize_reference import composite_reference
 _log = logging.getLogger(__name__)
 
 ALPHA_EPS = 1e-6  # depth is divided by alpha only where alpha > this (else 0)
-BACKENDS = ("auto", "torch", "fast", "gsplat")
+BACKENDS = ("auto", "c", "torch", "gsplat", "fast")  # "fast": the former name of "c"
 _USED: set[str] = set()  # the backends that rendered in this process (for a run's provenance)
 
 
 def backends_used() -> list[str]:
-    """The backends (``torch``, ``fast``, ``gsplat``) that :func:`render` ran so far in this process."""
+    """The backends (``c``, ``torch``, ``gsplat``) that :func:`render` ran so far in this process."""
     return sorted(_USED)
+
+
+class RasterizerUnavailableError(RasterizeError):
+    """The requested rasterizer backend cannot run here (kernel not built, gsplat missing, wrong device)."""
+
+
+def resolve_backend(requested: str, device: torch.device | str) -> str:
+    """The backend (``"c"``, ``"torch"`` or ``"gsplat"``) that ``requested`` uses on ``device``.
+
+    ``"auto"`` never fails: gsplat on CUDA when installed, else c on the CPU when its kernel is
+    available (else torch, after one warning from :mod:`gsslam.mapping.rasterize_cpu`). A backend
+    named explicitly that cannot run raises :class:`RasterizerUnavailableError` saying how to fix it.
+    """
+    if requested not in BACKENDS:
+        raise RasterizeError(f"unknown rasterizer backend {requested!r}; choose one of {', '.join(BACKENDS)}")
+    dev = torch.device(device).type
+    if requested == "torch":
+        return "torch"
+    if requested == "gsplat" or (requested == "auto" and dev == "cuda"):
+        if dev == "cuda" and _gsplat_available():
+            return "gsplat"
+        if requested == "auto":
+            return "torch"
+        if dev != "cuda":
+            raise RasterizerUnavailableError(
+                "the gsplat rasterizer needs CUDA tensors; set mapper.device=cuda, or mapper.rasterizer=auto"
+            )
+        raise RasterizerUnavailableError(
+            "the gsplat rasterizer needs the optional 'cuda' extra: pip install 'gsslam[cuda]' (gsplat)"
+        )
+    if dev != "cpu":  # "c" / "fast" / "auto" on a device other than cpu and cuda
+        if requested == "auto":
+            return "torch"
+        raise RasterizerUnavailableError(
+            f"the C rasterizer runs on the CPU, not on {dev}; set mapper.device=cpu or mapper.rasterizer=auto"
+        )
+    from gsslam.mapping import rasterize_cpu
+
+    reason = rasterize_cpu.unavailable_reason()
+    if reason is None:
+        return "c"
+    if requested == "auto":
+        _warn_fallback(reason)
+        return "torch"
+    raise RasterizerUnavailableError(
+        f"the compiled C rasterizer is unavailable: {reason}. Fix: reinstall with a C compiler present "
+        "(`pip install .` builds the kernel), or put a C compiler on PATH (`cc`, or set CC) for the "
+        "first-use build; or choose mapper.rasterizer=auto (uses torch when c is missing) or torch"
+    )
 
 
 @dataclass
@@ -65,6 +116,8 @@ def render(
     """
     if backend not in BACKENDS:
         raise RasterizeError(f"unknown rasterizer backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    if backend == "fast":
+        backend = "c"
     check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width, height)
     width, height = int(width), int(height)
     proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near)
@@ -84,13 +137,23 @@ def render(
         width,
         height,
     )
-    if backend == "torch" or (backend in ("auto", "fast") and not _fast_available(means)):
+    if backend == "c" and not _c_available(means):
+        resolve_backend("c", means.device)  # raises with the reason when the kernel is missing
+        raise RasterizerUnavailableError(
+            f"the C rasterizer takes float32/float64 CPU tensors, got {means.dtype} on {means.device}"
+        )
+    if backend == "auto" and not means.is_cuda and not _c_available(means):
+        from gsslam.mapping import rasterize_cpu
+
+        if rasterize_cpu.unavailable_reason() is not None:
+            _warn_fallback(rasterize_cpu.unavailable_reason())
+    if backend == "torch" or (backend == "auto" and not _c_available(means)):
         _USED.add("torch")
         feat, alpha = composite_reference(*args)
     else:
         from gsslam.mapping.rasterize_cpu import composite_cpu
 
-        _USED.add("fast")
+        _USED.add("c")
         feat, alpha = composite_cpu(*args)
     color = feat[..., :3]
     if background is not None:
@@ -119,11 +182,13 @@ def _render_gsplat(
     try:
         import gsplat
     except ImportError:
-        raise RasterizeError(
+        raise RasterizerUnavailableError(
             "backend='gsplat' needs the optional 'cuda' extra: pip install 'gsslam[cuda]' (gsplat)"
         ) from None
     if not means.is_cuda:
-        raise RasterizeError("backend='gsplat' needs CUDA tensors; move the inputs to the GPU or use 'fast'")
+        raise RasterizerUnavailableError(
+            "backend='gsplat' needs CUDA tensors; move the inputs to the GPU or use 'c'"
+        )
     dtype = means.dtype
     Kg = K.to(dtype).clone()
     Kg[0, 2] = Kg[0, 2] + 0.5
@@ -170,7 +235,22 @@ def _gsplat_available() -> bool:
     return True
 
 
-def _fast_available(means: Tensor) -> bool:
+_warned = False
+
+
+def _warn_fallback(reason: str) -> None:
+    """One WARNING per process when ``auto`` cannot use the compiled kernel on the CPU."""
+    global _warned
+    if not _warned:
+        _warned = True
+        _log.warning(
+            "compiled C rasterizer unavailable (%s); using the slower pure-torch reference "
+            "(same results; mapper.rasterizer=c makes this an error)",
+            reason,
+        )
+
+
+def _c_available(means: Tensor) -> bool:
     from gsslam.mapping import rasterize_cpu
 
     return rasterize_cpu.available(means)

@@ -1,7 +1,8 @@
 /* CPU Gaussian compositor (forward + hand-written backward) for gsslam.mapping.rasterize_cpu.
  *
- * Built at first use with the system C compiler into a small shared library loaded with ctypes
- * (no Python or torch headers): once with REAL=float and once with REAL=double.
+ * Built into a small shared library loaded with ctypes (no Python or torch headers), once with
+ * REAL=float and once with REAL=double: at install time by setup.py, else at first use with the
+ * system C compiler (gsslam/mapping/rasterize_build.py holds the one recipe both follow).
  *
  * Work is organised as exact per-pixel lists: pass 1 counts, per pixel, the (pixel, Gaussian) pairs
  * that pass the rules below; pass 2 fills the lists visiting Gaussians front to back, so each list
@@ -30,6 +31,12 @@
 #define FN(name) SUFFIX(name, TAG)
 #ifndef EXP
 #define EXP exp
+#endif
+
+/* The hash of this file and the flags it was built from, so that the loader can tell a library built
+ * from an older copy of this file (an edited checkout) from a current one. */
+#ifdef GSSLAM_SOURCE_KEY
+const char *FN(gsslam_source_key)(void) { return GSSLAM_SOURCE_KEY; }
 #endif
 
 #define POWER_CUTOFF 4.5

@@ -1,12 +1,20 @@
 """Compiled CPU compositor: exact per-pixel pair lists, forward and hand-written backward in C.
 
 Why a plain C library loaded with :mod:`ctypes` (and not numba or a torch C++ extension): the kernel
-needs nothing but raw float arrays, so it builds with the system C compiler in about a second
-(a torch extension needs the torch headers and takes about a minute on two cores), has no ABI tie to
-the installed torch, and adds no dependency. It is built at first use from ``rasterize_cpu.c`` into
-a cache folder (``$GSSLAM_CACHE_DIR``, else ``$XDG_CACHE_HOME/gsslam``, else ``~/.cache/gsslam``),
-keyed by a hash of the source and flags. Without a working compiler, :func:`available` is False and
-:func:`gsslam.mapping.rasterize.render` falls back to the pure-torch reference (with one warning).
+needs nothing but raw float arrays, so it builds with any C compiler in about a second (a torch
+extension needs the torch headers and takes about a minute on two cores), has no ABI tie to the
+installed torch, and adds no dependency.
+
+Where the library comes from (:mod:`gsslam.mapping.rasterize_build` holds the recipe):
+
+1. installed: ``pip install`` builds ``_rasterize_cpu<EXT_SUFFIX>`` next to this file (setup.py);
+   used when it was built from the current ``rasterize_cpu.c`` (it carries the source hash);
+2. else built at first use with the system C compiler into a private cache folder
+   (``$GSSLAM_CACHE_DIR``, else ``$XDG_CACHE_HOME/gsslam``, else ``~/.cache/gsslam``, else
+   ``<tmp>/gsslam-<uid>``), keyed by the source hash; a folder or file another user could write is
+   never loaded from;
+3. else :func:`available` is False: ``render(backend="auto")`` uses the pure-torch reference (one
+   warning) and ``backend="c"`` raises; both say :func:`unavailable_reason`.
 
 The maths and the rules are those of :func:`gsslam.mapping.rasterize_reference.composite_reference`;
 tests compare values and gradients of the two.
@@ -15,31 +23,24 @@ tests compare values and gradients of the two.
 from __future__ import annotations
 
 import ctypes
-import hashlib
+import importlib.machinery
 import logging
 import os
 import shutil
 import subprocess
-import tempfile
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from gsslam.mapping import rasterize_build as build
+
 _log = logging.getLogger(__name__)
 
-_SOURCE = Path(__file__).with_name("rasterize_cpu.c")
-_FLAGS = ["-O3", "-fPIC", "-std=gnu99", "-ffp-contract=off", "-pthread"]
-_VARIANTS = {torch.float32: ("f32", "float", "expf"), torch.float64: ("f64", "double", "exp")}
+_VARIANTS = {torch.float32: "f32", torch.float64: "f64"}
 _lib: ctypes.CDLL | None = None
-_load_failed = False
-
-
-def _cache_dir() -> Path:
-    if os.environ.get("GSSLAM_CACHE_DIR"):
-        return Path(os.environ["GSSLAM_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "gsslam"
+_origin: str | None = None  # "installed" | "cache" | "built": where the loaded library came from
+_failure: str | None = None  # why the kernel is unavailable (set once, then never retried)
 
 
 def _compiler() -> str | None:
@@ -49,67 +50,95 @@ def _compiler() -> str | None:
     return None
 
 
-def _build(cc: str, target: Path) -> None:
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
-        objs = []
-        for tag, real, exp in _VARIANTS.values():
-            obj = Path(tmp) / f"{tag}.o"
-            defs = [f"-DREAL={real}", f"-DTAG={tag}", f"-DEXP={exp}"]
-            subprocess.run(
-                [cc, *_FLAGS, *defs, "-c", str(_SOURCE), "-o", str(obj)],
-                check=True,
-                capture_output=True,
-                text=True,
-            )
-            objs.append(str(obj))
-        out = Path(tmp) / target.name
-        subprocess.run(
-            [cc, "-shared", "-pthread", *objs, "-o", str(out), "-lm"],
-            check=True,
-            capture_output=True,
-            text=True,
-        )
-        os.replace(out, target)  # atomic: concurrent builders never see a half-written library
+def _installed_library() -> Path | None:
+    """The library ``pip install`` built next to this module (setup.py), if there is one."""
+    stem = Path(__file__).with_name(build.EXT_NAME.rsplit(".", 1)[1])
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        path = stem.with_name(stem.name + suffix)
+        if path.is_file():
+            return path
+    return None
+
+
+def _built_from(lib: ctypes.CDLL) -> str | None:
+    try:
+        fn = lib.gsslam_source_key_f32
+    except AttributeError:
+        return None
+    fn.restype = ctypes.c_char_p
+    fn.argtypes = []
+    return fn().decode()
+
+
+def _cached_library(key: str) -> tuple[Path, str]:
+    """A library built from the current source in a private cache folder (built now if needed)."""
+    problems = []
+    for folder in build.cache_folders():
+        try:
+            build.private_folder(folder)
+        except OSError as e:
+            problems.append(f"{folder}: {e}")
+            continue
+        target = folder / f"rasterize_cpu_{key}.so"
+        if os.path.lexists(target):
+            problem = build.library_problem(target)
+            if problem is None:
+                return target, "cache"
+            _log.warning("not loading %s (%s); building a fresh one", target, problem)
+        cc = _compiler()
+        if cc is None:
+            raise RuntimeError("no C compiler found for the first-use build (set CC or install gcc)")
+        try:
+            build.compile_library(cc, target)
+        except PermissionError as e:
+            problems.append(f"{folder}: {e}")
+            continue
+        _log.info("built the CPU rasterizer kernel: %s", target)
+        return target, "built"
+    raise RuntimeError("no private folder to build the kernel in (" + "; ".join(problems) + ")")
 
 
 def _load() -> ctypes.CDLL | None:
-    global _lib, _load_failed
-    if _lib is not None or _load_failed:
+    global _lib, _origin, _failure
+    if _lib is not None or _failure is not None:
         return _lib
     try:
-        if not _SOURCE.is_file():
-            raise FileNotFoundError(f"{_SOURCE} is missing from the installation")
-        cc = _compiler()
-        key = hashlib.sha256(_SOURCE.read_bytes() + " ".join(_FLAGS).encode()).hexdigest()[:16]
-        target = _cache_dir() / f"rasterize_cpu_{key}.so"
-        if not target.is_file():
-            if cc is None:
-                raise RuntimeError("no C compiler found (set CC or install gcc)")
-            try:
-                _build(cc, target)
-            except PermissionError:
-                target = Path(tempfile.gettempdir()) / "gsslam" / target.name
-                if not target.is_file():
-                    _build(cc, target)
-            _log.info("built the CPU rasterizer kernel: %s", target)
-        lib = ctypes.CDLL(str(target))
+        key = build.source_key() if build.SOURCE.is_file() else None
+        installed = _installed_library()
+        lib = ctypes.CDLL(str(installed)) if installed is not None else None
+        if lib is not None and (key is None or _built_from(lib) == key):
+            _origin = "installed"
+        else:
+            if key is None:
+                raise RuntimeError(f"{build.SOURCE.name} is missing and no kernel is installed")
+            if lib is not None:
+                _log.info("%s was built from another %s; using a fresh build", installed, build.SOURCE.name)
+            path, _origin = _cached_library(key)
+            lib = ctypes.CDLL(str(path))
         _declare(lib)
         _lib = lib
     except (OSError, RuntimeError, subprocess.CalledProcessError) as e:
-        detail = getattr(e, "stderr", "") or ""
-        _log.warning(
-            "compiled CPU rasterizer unavailable (%s %s); using the slower pure-torch reference",
-            e,
-            detail.strip()[:500],
-        )
-        _load_failed = True
+        detail = (getattr(e, "stderr", "") or "").strip()[:500]
+        _failure = f"{e} {detail}".strip()
+        _log.debug("compiled CPU rasterizer unavailable: %s", _failure)  # callers warn or raise
     return _lib
+
+
+def unavailable_reason() -> str | None:
+    """Why the compiled kernel cannot be used (None when it loaded); loads it on first call."""
+    _load()
+    return _failure
+
+
+def origin() -> str | None:
+    """Where the loaded kernel came from: "installed" (built by pip), "cache" or "built" (first use)."""
+    _load()
+    return _origin
 
 
 def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
-    for tag, _, _ in _VARIANTS.values():
+    for tag in _VARIANTS.values():
         getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, i32]
         getattr(lib, f"count_pairs_{tag}").restype = i64
         getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p, i32]
@@ -132,7 +161,7 @@ def _ptr(t: Tensor) -> int:
 class _CompositeCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height):
-        lib, tag = _lib, _VARIANTS[means2d.dtype][0]
+        lib, tag = _lib, _VARIANTS[means2d.dtype]
         dt = means2d.dtype
         mu = means2d.detach().contiguous()
         con = conics.detach().to(dt).contiguous()
@@ -192,7 +221,7 @@ class _CompositeCPU(torch.autograd.Function):
     def backward(ctx, g_feat_out, g_alpha_out):
         mu, con, op, feat, offsets, pair_gid, pair_alpha, out_T, n_used = ctx.saved_tensors
         width, height = ctx.size
-        dt, tag = mu.dtype, _VARIANTS[mu.dtype][0]
+        dt, tag = mu.dtype, _VARIANTS[mu.dtype]
         n, f = feat.shape
         if g_feat_out is None:
             g_feat_out = torch.zeros(height, width, f, dtype=dt)

@@ -42,6 +42,7 @@ class MapState:
     # (a, b) -> (flow [h, w, 2] a -> b at the mapper resolution, valid [h, w] bool)
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     gen: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
+    backend: str = "auto"  # the rasterizer every render uses: "c" | "torch" | "gsplat" (resolved once)
 
     def keyframe(self, index: int) -> Keyframe:
         if index not in self.keyframes:
@@ -62,6 +63,7 @@ def render(state: MapState, T_cam_world: torch.Tensor, model: GaussianModel | No
         state.K,
         state.intrinsics.width,
         state.intrinsics.height,
+        backend=state.backend,
     )
 
 

@@ -110,6 +110,15 @@ def write_outputs(
     traj, kf_traj = trajectory_of(pipe, poses), trajectory_of(pipe, kf_poses)
     write_tum(traj, out / "trajectory.tum")
     write_tum(kf_traj, out / "keyframes.tum")
+    try:  # keyframe images + camera make the run folder self-contained for `gsslam export` / `--viz rerun`
+        from gsslam.run.keyframes import KEYFRAME_DIR, save_keyframe_images
+        from gsslam.run.render import save_intrinsics
+
+        save_intrinsics(pipe.intrinsics, out / "intrinsics.yaml")  # also without a map
+        kf_stamps = {i: pipe.timestamps[i] for i in kf_poses if i in pipe.timestamps}
+        save_keyframe_images(ds, kf_stamps, out / KEYFRAME_DIR)
+    except Exception as e:  # images must never lose a run's trajectory and numbers
+        log.warning("keyframe images not saved: %s", e)
     align = "sim3" if pipe.monocular else "se3"
     gt = ds.ground_truth()
     joined = one_world(pipe)  # chains not in one world frame: no single ATE

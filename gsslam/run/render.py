@@ -17,8 +17,9 @@ import torch
 import yaml
 
 from gsslam.errors import GsslamError
-from gsslam.geometry import invert_T, quat_to_rot
+from gsslam.geometry import invert_T
 from gsslam.io.atomic import atomic_path, atomic_write_text
+from gsslam.io.trajectory import TrajectoryIOError, read_tum
 from gsslam.types import CameraIntrinsics
 
 _log = logging.getLogger(__name__)
@@ -59,24 +60,11 @@ def load_intrinsics(path: str | Path) -> CameraIntrinsics:
 def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N], T_world_cam [N, 4, 4]
     if not path.is_file():
         raise RenderRunError(f"trajectory not found: {path}")
-    ts, poses = [], []
-    for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        v = line.split()
-        if len(v) != 8:
-            raise RenderRunError(
-                f"{path}:{n}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v)} values"
-            )
-        try:
-            x = np.array([float(a) for a in v])
-        except ValueError:
-            raise RenderRunError(f"{path}:{n}: not a number in '{line.strip()}'") from None
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = quat_to_rot(x[4:8]), x[1:4]
-        ts.append(x[0])
-        poses.append(T)
-    return np.array(ts), np.array(poses).reshape(-1, 4, 4)
+    try:
+        traj = read_tum(path)
+    except TrajectoryIOError as e:
+        raise RenderRunError(str(e)) from None
+    return traj.timestamps, traj.poses
 
 
 def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int:

@@ -32,7 +32,7 @@ from gsslam.slam.pipeline import Pipeline
 
 log = logging.getLogger(__name__)
 
-DATASETS_WITH_OPTIONAL_DEPTH = ("tum", "7scenes")  # loaders that take ``with_depth``
+DATASETS_WITH_OPTIONAL_DEPTH = ("tum", "7scenes", "rosbag")  # loaders that take ``with_depth``
 
 ProgressCallback = Callable[[int, int, float], None]  # (frames done, total, frames per second)
 

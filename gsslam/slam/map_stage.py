@@ -170,4 +170,5 @@ class MapStage:
             "depth_prior_factors": self.n_depth_priors,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,
+            "rasterizer_backend": self.mapper.rasterizer_backend,
         }

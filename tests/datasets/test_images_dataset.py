@@ -88,3 +88,39 @@ def test_malformed(bundled_tum, tmp_path):
     (tmp_path / "not_a_video.mp4").write_bytes(b"nothing")
     with pytest.raises(DatasetError, match="video"):
         ImageSequenceDataset(tmp_path / "not_a_video.mp4", fx=500, fy=500, cx=320, cy=240)
+
+
+ROS_CAMERA_INFO = """image_width: 640
+image_height: 480
+camera_name: rgb
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [535.4, 0, 320.1, 0, 539.2, 247.6, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+"""
+
+
+def test_ros_camera_info_yaml_is_accepted(bundled_tum, tmp_path):
+    from gsslam.datasets.common import load_intrinsics_yaml
+
+    image_folder(bundled_tum, tmp_path / "imgs", n=1)
+    (tmp_path / "ros.yaml").write_text(ROS_CAMERA_INFO)
+    (tmp_path / "k.yaml").write_text(YAML + "distortion: [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]\n")
+    ros = load_intrinsics_yaml(tmp_path / "ros.yaml")
+    assert (ros.fx, ros.fy, ros.cx, ros.cy, ros.width, ros.height) == (535.4, 539.2, 320.1, 247.6, 640, 480)
+    assert ros.distortion == (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+    a = ImageSequenceDataset(tmp_path / "imgs", intrinsics_file=tmp_path / "ros.yaml")
+    b = ImageSequenceDataset(tmp_path / "imgs", intrinsics_file=tmp_path / "k.yaml")
+    np.testing.assert_array_equal(a[0].image, b[0].image)  # undistorted the same way
+    (tmp_path / "fish.yaml").write_text(ROS_CAMERA_INFO.replace("plumb_bob", "equidistant"))
+    with pytest.raises(DatasetError, match="equidistant"):
+        load_intrinsics_yaml(tmp_path / "fish.yaml")

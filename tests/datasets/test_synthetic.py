@@ -98,3 +98,24 @@ def test_bad_parameters_raise():
         SyntheticDataset(trajectory="spiral")
     with pytest.raises(SyntheticDatasetError, match="n_frames"):
         SyntheticDataset(n_frames=0)
+
+
+def test_presets_cast_exact_depth_and_the_scene_option():
+    from gsslam.datasets.synthetic import PRESETS, SceneError, block_room, cylinder, planes
+    from gsslam.types import CameraIntrinsics
+
+    intr = CameraIntrinsics(40.0, 40.0, 15.5, 11.5, 32, 24)
+    eye = np.eye(4)
+    _, d = block_room(half_extent=(4.0, 1.5, 2.5)).cast(eye, intr)  # looking along +z at the z = 2.5 wall
+    np.testing.assert_allclose(d, 2.5, atol=1e-12)  # a fronto-parallel wall: z-depth is constant
+    pts = cylinder(radius=10.0).points(eye, intr)
+    np.testing.assert_allclose(np.hypot(pts[..., 0], pts[..., 2]), 10.0, atol=1e-9)
+    img, d = planes().cast(make_T(so3_exp(np.array([0.0, np.pi, 0.0])), np.zeros(3)), intr)
+    assert np.isnan(d).all() and (img == 0).all()  # looking away from every plane
+    with pytest.raises(SceneError, match="outside"):
+        block_room().cast(make_T(np.eye(3), [5.0, 0.0, 0.0]), intr)
+    assert set(PRESETS) >= {"room", "block_room", "planes", "cylinder"}
+    ds = SyntheticDataset(n_frames=3, width=32, height=24, scene="block_room")
+    assert np.isfinite(ds[1].depth).all()
+    with pytest.raises(SyntheticDatasetError, match="scene"):
+        SyntheticDataset(scene="castle")

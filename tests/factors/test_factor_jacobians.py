@@ -5,7 +5,6 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from factor_helpers import analytic_jacobians, numeric_jacobians, random_value
 from gtsam.symbol_shorthand import S
 
 from factors import (
@@ -16,6 +15,7 @@ from factors import (
     make_scale_prior_factor,
     make_submap_alignment_factor,
 )
+from helpers.factors import analytic_jacobians, numeric_jacobians, random_value
 
 GROUPS = ["pose3", "sim3"]
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from factor_helpers import analytic_jacobians, random_value
 from gtsam.symbol_shorthand import L, S
 
 from factors import make_flow_factor, make_scale_factor, make_submap_alignment_factor, to_matrix
+from helpers.factors import analytic_jacobians, random_value
 
 
 def _relative(rng, scale=1.0):

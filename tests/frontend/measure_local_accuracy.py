@@ -1,6 +1,6 @@
 """Measure the encoders' local-pose accuracy on TUM fr3/teddy (a script, not a test).
 
-    python tests/frontend/measure_local_accuracy.py [TUM folder] [--frames N] [--mode rgbd|mono]
+    PYTHONPATH=tests python tests/frontend/measure_local_accuracy.py [TUM folder] [--frames N] [--mode M]
 
 Selects keyframes with the flow keyframe rule, cuts submaps of K+1 keyframes sharing one frame,
 encodes each and prints, per submap, the mean relative translation / rotation error of the
@@ -10,20 +10,17 @@ frames w.r.t. frame 0 against ground truth (mono: after a per-submap least-squar
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tum_frames import load_tum  # noqa: E402
-
-from gsslam.config import FlowConfig, KeyframeConfig, load_config  # noqa: E402
-from gsslam.frontend.encoder import make_encoder  # noqa: E402
-from gsslam.frontend.flow import make_flow_estimator  # noqa: E402
-from gsslam.frontend.keyframes import KeyframeSelector  # noqa: E402
-from gsslam.frontend.local_accuracy import local_pose_errors  # noqa: E402
+from gsslam.config import FlowConfig, KeyframeConfig, load_config
+from gsslam.frontend.encoder import make_encoder
+from gsslam.frontend.flow import make_flow_estimator
+from gsslam.frontend.keyframes import KeyframeSelector
+from gsslam.frontend.local_accuracy import local_pose_errors
+from helpers.tum import load_tum
 
 
 def select_keyframes(frames, flow, selector) -> list[int]:

@@ -2,18 +2,12 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tum_frames import load_tum  # noqa: E402
-
-from gsslam.config import FlowConfig  # noqa: E402
-from gsslam.frontend.flow import (  # noqa: E402
+from gsslam.config import FlowConfig
+from gsslam.frontend.flow import (
     FlowError,
     compose_flows,
     forward_backward_mask,
@@ -21,6 +15,7 @@ from gsslam.frontend.flow import (  # noqa: E402
     register_flow_method,
     resize_flow,
 )
+from helpers.tum import load_tum
 
 
 def _shift(img: np.ndarray, dx: float, dy: float) -> np.ndarray:

@@ -3,15 +3,11 @@
 from __future__ import annotations
 
 import gc
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-from tum_frames import load_tum  # noqa: E402
-
-from gsslam.frontend.flow import DISFlow  # noqa: E402
+from gsslam.frontend.flow import DISFlow
+from helpers.tum import load_tum
 
 
 def test_cached_flow_equals_fresh_flow_and_is_released(bundled_tum):

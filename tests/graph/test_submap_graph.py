@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from graph_synth import INTR, ate, loop_points, make_chain, true_pose
 
 from gsslam.config import GraphConfig
 from gsslam.graph.keys import submap_key
 from gsslam.graph.submap_graph import GraphError, SubmapGraph
 from gsslam.types import Correspondences
+from helpers.submap_chain import INTR, ate, loop_points, make_chain, true_pose
 
 # The synthetic encoder drifts ~2 % in scale per submap: its shared-frame points are trusted to
 # 0.1 world units (50 per pair), a verified loop to 0.02.

@@ -1,3 +1,3 @@
 """Fixtures of the loop tests: synthetic scenes built once per session (~1 s each)."""
 
-from loop_scenes import corridor, revisit_mono, revisit_rgbd  # noqa: F401
+from helpers.loop_scenes import corridor, revisit_mono, revisit_rgbd  # noqa: F401

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from loop_graph import ate, keyframe_positions, optimise
-from loop_scenes import wrong_loop
 
 from gsslam.geometry import invert_T, make_T, so3_exp, transform_points
 from gsslam.loop import drift_gate, propagate_correction
 from gsslam.loop.consistency import chain, relative
+from helpers.loop_graph import ate, keyframe_positions, optimise
+from helpers.loop_scenes import wrong_loop
 
 
 def _random_sim3(rng, scale=True):

@@ -5,15 +5,14 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pytest
-from loop_scenes import DRIFT, wrong_loop
 
 from gsslam.config import GraphConfig, LoopConfig
+from gsslam.datasets.synthetic import block_room, make_submaps
+from gsslam.datasets.synthetic.trajectories import outward_circle
 from gsslam.geometry import make_T, so3_exp, so3_log, split_sim3
+from gsslam.graph import submap_graph
 from gsslam.loop import LoopDetector, propagate_correction
-from gsslam.loop.synthetic import TexturedRoom, circle_trajectory, make_submaps
-
-submap_graph = pytest.importorskip("gsslam.graph.submap_graph")
+from helpers.loop_scenes import DRIFT, wrong_loop
 
 
 def _drifted_encodings(sm, rng):
@@ -31,7 +30,7 @@ def _drifted_encodings(sm, rng):
 
 
 def test_loops_through_submap_graph():
-    sm = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(61, 1.2), mono=False, seed=0)
+    sm = make_submaps(block_room(seed=1), outward_circle(61, 1.2), mono=False, seed=0)
     encs = _drifted_encodings(sm, np.random.default_rng(0))
     graph = submap_graph.SubmapGraph(GraphConfig(), monocular=False)
     det = LoopDetector(LoopConfig(), mode="rgbd")
@@ -76,7 +75,7 @@ def _submap_ate(graph, sm) -> float:
 
 
 def test_loop_closure_through_submap_graph_cuts_ate_with_default_weights():
-    sm = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(61, 1.2), mono=False, seed=0)
+    sm = make_submaps(block_room(seed=1), outward_circle(61, 1.2), mono=False, seed=0)
     encs = _drifted_encodings(sm, np.random.default_rng(0))
     results = {}
     for loops_on in (False, True):

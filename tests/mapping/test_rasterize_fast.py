@@ -6,10 +6,12 @@ import pytest
 import torch
 from test_rasterize_reference import intrinsics, random_scene, small_pose
 
-from gsslam.mapping import rasterize_cpu
-from gsslam.mapping.rasterize import render
+from gsslam.mapping import rasterize, rasterize_cpu
+from gsslam.mapping.rasterize import RasterizerUnavailableError, render
 
-pytestmark = pytest.mark.skipif(not rasterize_cpu.available(torch.zeros(1)), reason="no C compiler")
+pytestmark = pytest.mark.skipif(
+    not rasterize_cpu.available(torch.zeros(1)), reason="no compiled C kernel (no C compiler)"
+)
 
 
 def _render_and_grads(backend, scene, T, K, w, h, bg, weights):
@@ -29,7 +31,7 @@ def test_fast_matches_reference_values_and_gradients(dtype, rtol, seed):
     bg = torch.tensor([0.3, 0.6, 0.1], dtype=dtype)
     weights = torch.rand(h, w, 8, generator=torch.Generator().manual_seed(seed), dtype=dtype)
     img_ref, out_ref, g_ref = _render_and_grads("torch", scene, T, K, w, h, bg, weights)
-    img_fast, out_fast, g_fast = _render_and_grads("fast", scene, T, K, w, h, bg, weights)
+    img_fast, out_fast, g_fast = _render_and_grads("c", scene, T, K, w, h, bg, weights)
     assert (
         float(out_ref.alpha.detach().max()) > 0.9 and float(out_ref.alpha.detach().min()) < 0.1
     )  # a non-trivial image
@@ -49,7 +51,7 @@ def test_fast_gradcheck_float64():
     weights = torch.rand(h, w, 8, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
 
     def f(means, quats, scales, opacities, colors, T):
-        out = render(means, quats, scales, opacities, colors, T, K, w, h, backend="fast")
+        out = render(means, quats, scales, opacities, colors, T, K, w, h, backend="c")
         img = torch.cat([out.color, out.depth[..., None], out.normal, out.alpha[..., None]], dim=-1)
         return (img * weights).sum()
 
@@ -65,37 +67,48 @@ def test_fast_handles_empty_and_saturated_images():
     scene = list(random_scene(10, 0, dtype=dt))
     scene[0] = scene[0] * torch.tensor([1.0, 1.0, -1.0])
     _, out, grads = _render_and_grads(
-        "fast", scene, torch.eye(4, dtype=dt), K, w, h, None, torch.ones(h, w, 8, dtype=dt)
+        "c", scene, torch.eye(4, dtype=dt), K, w, h, None, torch.ones(h, w, 8, dtype=dt)
     )
     assert float(out.alpha.detach().max()) == 0.0 and all(float(g.abs().max()) == 0.0 for g in grads)
     # many opaque layers: transmittance early stop engaged, still equal to the reference
     scene = list(random_scene(60, 1, dtype=dt))
     scene[2] = scene[2] * 4.0
     scene[3] = torch.full_like(scene[3], 0.98)
-    a = render(*scene, torch.eye(4, dtype=dt), K, w, h, backend="fast")
+    a = render(*scene, torch.eye(4, dtype=dt), K, w, h, backend="c")
     b = render(*scene, torch.eye(4, dtype=dt), K, w, h, backend="torch")
     assert float(a.alpha.min()) > 0.99
     torch.testing.assert_close(a.color, b.color, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(a.depth, b.depth, rtol=1e-4, atol=1e-4)
 
 
-def test_without_a_compiler_fast_falls_back_to_the_reference(monkeypatch, tmp_path):
+def _reset_loader(monkeypatch):
     monkeypatch.setattr(rasterize_cpu, "_lib", None)
-    monkeypatch.setattr(rasterize_cpu, "_load_failed", False)
+    monkeypatch.setattr(rasterize_cpu, "_origin", None)
+    monkeypatch.setattr(rasterize_cpu, "_failure", None)
+    monkeypatch.setattr(rasterize_cpu, "_installed_library", lambda: None)  # as in a checkout never built
+
+
+def test_without_a_compiler_auto_falls_back_to_the_reference_and_c_raises(monkeypatch, tmp_path, caplog):
+    _reset_loader(monkeypatch)
+    monkeypatch.setattr(rasterize, "_warned", False)
     monkeypatch.setattr(rasterize_cpu, "_compiler", lambda: None)
     monkeypatch.setenv("GSSLAM_CACHE_DIR", str(tmp_path))  # empty cache: a build would be needed
     w, h = 16, 12
     scene = random_scene(10, 4)
     T, K = small_pose(4), intrinsics(w, h)
-    out = render(*scene, T, K, w, h, backend="fast")
+    out = render(*scene, T, K, w, h, backend="auto")
+    render(*scene, T, K, w, h, backend="auto")
     assert not rasterize_cpu.available(scene[0])
+    warnings = [r for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "pure-torch reference" in warnings[0].getMessage()
     ref = render(*scene, T, K, w, h, backend="torch")
     torch.testing.assert_close(out.color, ref.color, rtol=0, atol=0)
+    with pytest.raises(RasterizerUnavailableError, match="no C compiler"):
+        render(*scene, T, K, w, h, backend="c")
 
 
 def test_kernel_builds_into_a_fresh_cache(monkeypatch, tmp_path):
-    monkeypatch.setattr(rasterize_cpu, "_lib", None)
-    monkeypatch.setattr(rasterize_cpu, "_load_failed", False)
+    _reset_loader(monkeypatch)
     monkeypatch.setenv("GSSLAM_CACHE_DIR", str(tmp_path))
-    assert rasterize_cpu.available(torch.zeros(1))
+    assert rasterize_cpu.available(torch.zeros(1)) and rasterize_cpu.origin() == "built"
     assert len(list(tmp_path.glob("rasterize_cpu_*.so"))) == 1

@@ -1,4 +1,4 @@
-"""Synthetic revisit scenes and helpers shared by the loop tests."""
+"""Synthetic revisit scenes (the ``block_room`` preset) and helpers shared by the loop tests."""
 
 from __future__ import annotations
 
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from gsslam.config import LoopConfig
+from gsslam.datasets.synthetic import block_room, make_submaps
+from gsslam.datasets.synthetic.trajectories import outward_circle, wall_scan
 from gsslam.geometry import make_T, so3_exp, transform_points
 from gsslam.loop import LoopConstraint, LoopDetector
-from gsslam.loop.synthetic import TexturedRoom, circle_trajectory, line_trajectory, make_submaps
 
 # 10 submaps of K=6 over 1.2 turns of a circle looking outward at the walls of a textured room:
 # submaps 8 and 9 revisit what 0 and 1 saw. Drift: 1.5 deg of yaw per submap link (the usual
@@ -29,21 +30,21 @@ def run_detector(sm, mode: str, cfg: LoopConfig | None = None):
 
 @pytest.fixture(scope="session")
 def revisit_rgbd():
-    sm = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(61, 1.2), mono=False, seed=0, **DRIFT)
+    sm = make_submaps(block_room(seed=1), outward_circle(61, 1.2), mono=False, seed=0, **DRIFT)
     return sm, *run_detector(sm, "rgbd")
 
 
 @pytest.fixture(scope="session")
 def revisit_mono():
-    sm = make_submaps(TexturedRoom.random(seed=1), circle_trajectory(61, 1.2), mono=True, seed=3, **DRIFT)
+    sm = make_submaps(block_room(seed=1), outward_circle(61, 1.2), mono=True, seed=3, **DRIFT)
     return sm, *run_detector(sm, "mono")
 
 
 @pytest.fixture(scope="session")
 def corridor():
     """A sideways scan along a 20 m wall: nothing is ever seen twice."""
-    room = TexturedRoom.random(half_extent=(11.0, 1.5, 3.0), seed=4)
-    return make_submaps(room, line_trajectory(61, 18.0, 2.5, 3.0), mono=False, seed=5, **DRIFT)
+    room = block_room(half_extent=(11.0, 1.5, 3.0), seed=4)
+    return make_submaps(room, wall_scan(61, 18.0, 2.5, 3.0), mono=False, seed=5, **DRIFT)
 
 
 def gt_relative(sm, i: int, m: int) -> np.ndarray:

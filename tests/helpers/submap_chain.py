@@ -3,45 +3,34 @@
 Each submap i has its own (unknown) unit ``sigma_i`` and an internal scale drift: frame j of the
 submap is expressed in units ``sigma_i (1 + eps_i)^(j / K)``, so chaining through the shared frame
 accumulates ~``eps`` of scale error per submap. Local rotations carry small noise. Point maps are
-ray-cast against the cylinder, so a frame seen again after the loop has the same point map.
+ray-cast against the ``cylinder`` preset, so a frame seen again after the loop has the same point map.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from gsslam.datasets.synthetic import cylinder
+from gsslam.datasets.synthetic.trajectories import outward_circle
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, SubmapEncoding
 
 INTR = CameraIntrinsics(fx=20.0, fy=20.0, cx=7.5, cy=5.5, width=16, height=12)
 WALL_RADIUS = 10.0
+_WALL = cylinder(WALL_RADIUS)
 
 
 def true_pose(f: int, n_frames: int, radius: float = 5.0) -> np.ndarray:
-    """T_world_cam of frame ``f`` on a circle (y is up/down), looking outward; frame n_frames == 0."""
-    th = 2 * np.pi * f / n_frames
-    c = np.array([radius * np.cos(th), 0.0, radius * np.sin(th)])
-    z = np.array([np.cos(th + 0.5), 0.0, np.sin(th + 0.5)])  # looking outward, a little ahead
-    y = np.array([0.0, 1.0, 0.0])
-    x = np.cross(y, z)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = c
-    return T
+    """T_world_cam of frame ``f`` on a circle (y is up/down), looking outward a little ahead
+    (0.5 rad); frame n_frames == frame 0."""
+    return outward_circle(2, turns=-f / n_frames, radius=radius, yaw_offset=-0.5, bob=0.0, start=np.pi / 2)[
+        -1
+    ]
 
 
 def point_map(T_wc: np.ndarray) -> np.ndarray:
     """[h, w, 3] camera points where the pixel rays hit the cylinder wall."""
-    K = INTR.K
-    u, v = np.meshgrid(np.arange(INTR.width, dtype=float), np.arange(INTR.height, dtype=float))
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # z = 1
-    d = rays @ T_wc[:3, :3].T
-    c = T_wc[:3, 3]
-    a = d[..., 0] ** 2 + d[..., 2] ** 2
-    b = 2 * (c[0] * d[..., 0] + c[2] * d[..., 2])
-    cc = c[0] ** 2 + c[2] ** 2 - WALL_RADIUS**2
-    t = (-b + np.sqrt(b * b - 4 * a * cc)) / (2 * a)
-    return rays * t[..., None]
+    return _WALL.points(T_wc, INTR)
 
 
 def make_chain(

@@ -6,7 +6,8 @@ cannot be used. Instead every earlier submap is ranked by appearance alone (tiny
 best view pair), and the best ``max_reprojection_checks`` are verified exactly as loops are (ORB
 matches lifted to 3D, RANSAC, ``min_inliers`` and ``min_inlier_ratio``). The verified loop with the
 most inliers wins. :func:`refine_rigid` then refines its transform by point-to-plane ICP between the
-two submaps' dense point maps (RGB-D: metric depth), starting from the RANSAC estimate.
+dense point maps (RGB-D: metric depth), starting from the RANSAC estimate (numpy + OpenCV's k-d
+tree: no extra dependency).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from gsslam.config import LoopConfig
+from gsslam.geometry import make_T, so3_exp
 from gsslam.loop.appearance import appearance_overlap
 from gsslam.loop.types import LoopCandidate, LoopConstraint, SubmapRecord
 from gsslam.loop.verification import verify
@@ -59,29 +61,51 @@ def local_points(enc: SubmapEncoding, voxel: float) -> np.ndarray:  # -> [N, 3] 
     return pts[np.sort(keep)]
 
 
+def _normals(points: np.ndarray, index, k: int = 30) -> np.ndarray:  # [N, 3] -> [N, 3] unit
+    """Surface normals by PCA of each point's ``k`` nearest neighbours."""
+    idx, _ = index.knnSearch(points.astype(np.float32), k, params={"checks": -1})
+    nb = points[idx]  # [N, k, 3]
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    return vecs[:, :, 0]  # eigenvector of the smallest eigenvalue
+
+
 def refine_rigid(
-    T_i_m: np.ndarray,  # [4, 4] initial, maps submap-m local points to submap-i local
-    points_i: np.ndarray,  # [N, 3]
-    points_m: np.ndarray,  # [M, 3]
+    T_dst_src: np.ndarray,  # [4, 4] initial, maps src points onto dst points
+    points_dst: np.ndarray,  # [N, 3]
+    points_src: np.ndarray,  # [M, 3]
     max_distance: float,
     iterations: int = 30,
 ) -> tuple[np.ndarray, float]:
-    """Point-to-plane ICP of ``points_m`` onto ``points_i`` from ``T_i_m``; returns (T_i_m, fitness).
+    """Point-to-plane ICP of ``points_src`` onto ``points_dst`` from ``T_dst_src``; returns the refined
+    transform and its fitness (share of ``points_src`` with a partner within ``max_distance``).
 
-    ``fitness``: share of ``points_m`` with a partner within ``max_distance`` after refinement.
+    Exact nearest neighbours from OpenCV's single k-d tree (deterministic); each step solves the
+    linearized point-to-plane least squares for a small rotation and translation.
     """
-    import open3d as o3d  # only when chains are re-localized
+    import cv2
 
-    src, dst = o3d.geometry.PointCloud(), o3d.geometry.PointCloud()
-    src.points = o3d.utility.Vector3dVector(np.asarray(points_m, dtype=np.float64))
-    dst.points = o3d.utility.Vector3dVector(np.asarray(points_i, dtype=np.float64))
-    dst.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * max_distance, max_nn=30))
-    res = o3d.pipelines.registration.registration_icp(
-        src,
-        dst,
-        max_distance,
-        np.asarray(T_i_m, dtype=np.float64),
-        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
-        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=iterations),
-    )
-    return np.asarray(res.transformation), float(res.fitness)
+    dst = np.asarray(points_dst, dtype=np.float64)
+    src = np.asarray(points_src, dtype=np.float64)
+    index = cv2.flann_Index(dst.astype(np.float32), {"algorithm": 4, "leaf_max_size": 10})  # single kd-tree
+    normals = _normals(dst, index)
+    T = np.asarray(T_dst_src, dtype=np.float64).copy()
+    ok = np.zeros(len(src), dtype=bool)
+    for _ in range(iterations):
+        moved = src @ T[:3, :3].T + T[:3, 3]
+        idx, d2 = index.knnSearch(moved.astype(np.float32), 1, params={"checks": -1})
+        idx, dist = idx[:, 0], np.sqrt(d2[:, 0])
+        ok = dist < max_distance
+        if ok.sum() < 6:
+            break
+        p, q, n = moved[ok], dst[idx[ok]], normals[idx[ok]]
+        A = np.concatenate([np.cross(p, n), n], axis=1)  # [K, 6]: d(residual)/d(omega, t)
+        b = np.einsum("ki,ki->k", q - p, n)
+        x = np.linalg.lstsq(A, b, rcond=None)[0]
+        dT = make_T(so3_exp(x[:3]), x[3:])
+        T = dT @ T
+        if np.linalg.norm(x) < 1e-7:
+            break
+    moved = src @ T[:3, :3].T + T[:3, 3]
+    _, d2 = index.knnSearch(moved.astype(np.float32), 1, params={"checks": -1})
+    return T, float(np.mean(np.sqrt(d2[:, 0]) < max_distance))

@@ -64,4 +64,4 @@ def test_rgbd_chains_are_rejoined_within_1_5x_of_the_gap_free_run(gap_copy, tmp_
     base = evaluate(gt, same, align="se3").ate.stats.rmse
     rejoined = evaluate(gt, gap_traj, align="se3").ate.stats.rmse
     assert rejoined == pytest.approx(m["ate"]["rmse_m"], rel=1e-6)
-    assert rejoined <= 1.5 * base, (rejoined, base)  # measured 0.37 cm vs 0.51 cm
+    assert rejoined <= 1.5 * base, (rejoined, base)  # measured 0.57 cm vs 0.51 cm

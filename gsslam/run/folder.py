@@ -30,8 +30,10 @@ OWN_FILES = (
     "trajectory.png",
     "map.ply",
     "intrinsics.yaml",
+    "run.rrd",  # gsslam run --viz rerun / gsslam view
+    "ate.png",  # gsslam demo
 )
-OWN_DIRS = ("renders",)
+OWN_DIRS = ("renders", "keyframes", "export_colmap", "export_nerfstudio", "export_inria")
 LOCK_NAME = ".gsslam.lock"
 
 

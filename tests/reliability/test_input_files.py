@@ -31,7 +31,7 @@ def test_non_finite_groundtruth_is_refused_when_opened(tmp_path, bad):
     edit_row(seq / "groundtruth.txt", 4, lambda f: [f[0], bad, *f[2:]])
     before = snapshot(seq)
     r = gsslam("run", seq, "--out", tmp_path / "out", *FAST)
-    assert_error(r, "groundtruth.txt:8:", "non-finite", "fix or delete this row")
+    assert_error(r, "groundtruth.txt:8:", "non-finite", "fix the file or delete that row")
     assert not (tmp_path / "out").exists()  # refused before the run: nothing written
     assert snapshot(seq) == before
 

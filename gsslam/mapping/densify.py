@@ -120,7 +120,9 @@ class DensifyStrategy:
         big = state["max_radius"][cand] >= self.split_radius_px
         split_idx, clone_idx = cand[big], cand[~big]
         model, state = self._clone(model, state, clone_idx)  # appends: original indices stay valid
-        model, state = self._split(model, state, split_idx, generator)  # removes parents, appends two children each
+        model, state = self._split(
+            model, state, split_idx, generator
+        )  # removes parents, appends two children each
 
         # 2. prune
         # layout now: originals without split parents, clones, first children, second children

@@ -72,3 +72,4 @@ def open_dataset(name: str, path: str | Path, **kwargs: Any) -> Dataset:
 def _load_builtin() -> None:
     # Importing the modules runs their @register_dataset decorators.
     from gsslam.datasets import euroc, images, kitti, sevenscenes, synthetic, tum  # noqa: F401
+    from gsslam.datasets import playback  # noqa: F401

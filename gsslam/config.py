@@ -56,6 +56,8 @@ class EncoderConfig:
         False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
     )
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
+    rgbd_icp: bool = False  # RGB-D: refine PnP poses by dense point-to-plane ICP on depth (frontend/icp.py)
+    rgbd_icp_direct: bool = True  # and register each keyframe directly to the submap's frame 0 by ICP
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
@@ -69,6 +71,7 @@ class GraphConfig:
     adjacency_sigma_m: float = (
         0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
     )
+    flow_effective_points: float = 0.0  # >0: a flow factor weighs as this many independent matches (aggregate)
     loop_sigma_m: float = 0.05
     depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
     prior_rot_sigma: float = 1e-4
@@ -181,6 +184,9 @@ class PipelineConfig:
     max_lost_frames: int = 2  # consecutive tracking failures that start a new submap chain
     cross_flow_back: int = 3  # each new keyframe gets flow to keyframes this far back in the previous submap
     flow_points: int = 1000  # correspondences per cross-submap keyframe pair
+    pose_outlier_max_dev_m: float = 0.02  # non-keyframe this far (+ half its keyframes' gap) off their path: interpolated (0: off)
+    pose_outlier_max_dev_deg: float = 3.0  # the same for the rotation (+ half the keyframes' rotation)
+    track_icp: bool = False  # RGB-D: refine each tracked frame's PnP pose by ICP against its keyframe's depth
 
 
 @dataclass(frozen=True)

@@ -107,6 +107,7 @@ class Pipeline:
         self.last_pose: np.ndarray = np.eye(4)
         self.n_frames = 0
         self.n_flow_factors = 0
+        self.n_pose_outliers = 0  # non-keyframe poses replaced by interpolation (frame_poses)
         self.last_good: Frame | None = None  # last non-keyframe tracked successfully
         self.map_stage = None  # gsslam.pipeline_mapping.MapStage when cfg.mapper.enabled
         if cfg.mapper.enabled:
@@ -149,6 +150,8 @@ class Pipeline:
             )
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
+            elif pc.track_icp:
+                T_ref_cur = refine_by_icp(frame_depth(self.tracker.ref), frame.depth, self.intrinsics, T_ref_cur)
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
@@ -373,6 +376,16 @@ class Pipeline:
                 out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
         # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
         out.update(interpolate_poses(out, [m.cur_index for m, _ in self.pending], self.timestamps))
+        if pc.pose_outlier_max_dev_m > 0:  # and so is one whose PnP pose leaves its keyframes' path
+            from gsslam.frontend.pose_outliers import find_pose_outliers
+
+            bad = find_pose_outliers(
+                out, set(kf_poses), self.timestamps, pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg
+            )
+            for f in bad:
+                out.pop(f)
+            out.update(interpolate_poses(out, bad, self.timestamps))
+            self.n_pose_outliers = len(bad)
         return dict(sorted(out.items()))
 
     def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
@@ -388,6 +401,17 @@ class Pipeline:
     def current_pose_estimate(self) -> np.ndarray:
         """Best guess of the latest camera pose (where a new chain is placed)."""
         return self.last_pose.copy()
+
+
+def refine_by_icp(depth_ref, depth_cur, intr: CameraIntrinsics, T_ref_cur: np.ndarray) -> np.ndarray:
+    """``T_ref_cur`` refined by dense ICP of the two depth maps (full resolution), or as given."""
+    from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane
+    from gsslam.geometry import invert_T
+
+    if depth_cur is None:
+        return T_ref_cur
+    res = icp_point_to_plane(depth_ref, depth_cur, intr, invert_T(T_ref_cur), strides=TRACK_STRIDES)
+    return invert_T(res.T_tgt_src) if res.ok else T_ref_cur
 
 
 def frame_depth(frame: Frame | None) -> np.ndarray:

@@ -32,6 +32,7 @@ from gsslam.frontend.encoder import (
     robust_depth_stats,
 )
 from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, resize_flow, textured_mask
+from gsslam.frontend.icp import icp_point_to_plane
 from gsslam.frontend.pose_estimation import pnp_from_flow, pose_distance
 from gsslam.geometry import depth_to_points, invert_T
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
@@ -40,6 +41,7 @@ log = logging.getLogger(__name__)
 
 FB_THRESHOLD_PX = 1.0  # at point-map resolution
 EDGE_CONFIDENCE = 0.3
+ICP_STRIDES = (4, 2)  # at point-map resolution (TUM 320x240: 80x60 then 160x120 points)
 
 
 def _rgbd_image(img: np.ndarray, depth: np.ndarray):  # [h, w, 3], [h, w] -> open3d RGBDImage
@@ -141,6 +143,12 @@ class RGBDEncoder:
             )
             meta["pnp_failed"].append(i)
             T = np.eye(4)
+        if self.cfg.rgbd_icp:
+            icp = icp_point_to_plane(depths[i - 1], depths[i], intr, T, strides=ICP_STRIDES)
+            if icp.ok:
+                T = icp.T_tgt_src
+            else:
+                meta["icp_rejected"].append((i, icp.reason))
         if self.cfg.rgbd_odometry:
             ok, T_odo = rgbd_odometry((imgs[i - 1], depths[i - 1]), (imgs[i], depths[i]), intr, T, self.cfg)
             dt, dr = pose_distance(T, T_odo)
@@ -169,6 +177,8 @@ class RGBDEncoder:
             "pnp_failed": [],
             "odometry_rejected": [],
             "direct_rejected": [],
+            "icp_rejected": [],
+            "icp_direct_rejected": [],
             "degenerate": False,
         }
         n = len(frames)
@@ -177,6 +187,13 @@ class RGBDEncoder:
             T_i_prev = self._frame_to_frame(frames, imgs, depths, i, intr, meta)
             T_chain = T_local[i - 1] @ invert_T(T_i_prev)  # T_0_i
             T_local[i] = T_chain
+            if self.cfg.rgbd_icp and self.cfg.rgbd_icp_direct and i > 1:
+                # keyframe-to-keyframe: frame i straight against frame 0 stops the chained drift
+                icp = icp_point_to_plane(depths[0], depths[i], intr, invert_T(T_chain), strides=ICP_STRIDES)
+                if icp.ok:
+                    T_local[i] = invert_T(icp.T_tgt_src)
+                else:
+                    meta["icp_direct_rejected"].append((i, icp.reason))
             if self.cfg.rgbd_odometry and i > 1:
                 ok, T_i_0 = rgbd_odometry(
                     (imgs[0], depths[0]), (imgs[i], depths[i]), intr, invert_T(T_chain), self.cfg

@@ -56,7 +56,10 @@ class EncoderConfig:
         False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
     )
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
-    rgbd_icp: bool = False  # RGB-D: refine PnP poses by dense point-to-plane ICP on depth (frontend/icp.py)
+    rgbd_icp: bool = False  # RGB-D: always refine PnP poses by dense point-to-plane ICP on depth (frontend/icp.py)
+    rgbd_icp_auto: bool = True  # RGB-D: use ICP once PnP and ICP rotations disagree (colour not calibrated to depth)
+    rgbd_icp_auto_min_ratio: float = 0.96  # PnP / ICP rotation ratio below this: colour and depth disagree
+    rgbd_icp_auto_max_ratio: float = 1.08  # above this (ICP itself turns ~3 % short on TUM teddy: 1.02-1.05)
     rgbd_icp_direct: bool = True  # and register each keyframe directly to the submap's frame 0 by ICP
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)

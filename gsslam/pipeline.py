@@ -150,7 +150,7 @@ class Pipeline:
             )
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
-            elif pc.track_icp:
+            elif pc.track_icp or getattr(self.encoder, "use_icp", False):
                 T_ref_cur = refine_by_icp(frame_depth(self.tracker.ref), frame.depth, self.intrinsics, T_ref_cur)
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.

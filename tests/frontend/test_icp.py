@@ -47,3 +47,25 @@ def test_icp_refuses_missing_depth(frames):
     empty = np.full_like(a.depth, np.nan)
     res = icp_point_to_plane(a.depth, empty, ds.intrinsics, np.eye(4))
     assert not res.ok and res.reason == "few_points"
+
+
+def _rot(v_deg):
+    return make_T(so3_exp(np.radians(np.asarray(v_deg, float))), np.zeros(3))
+
+
+def test_colour_depth_check_flags_a_wrong_colour_focal_length():
+    from gsslam.frontend.rgbd_encoder import ColourDepthCheck
+
+    rng = np.random.default_rng(0)
+    for factor, expect in ((0.9, True), (1.03, False), (1.0, False), (1.15, True)):
+        check = ColourDepthCheck(0.96, 1.08)
+        for k in range(12):
+            w = rng.normal(size=3) * 2.0  # a few degrees per keyframe pair
+            check.add(_rot(factor * w + rng.normal(size=3) * 0.05), _rot(w))
+            if k < 7:
+                assert not check.mismatch  # needs 8 pairs
+        assert np.isclose(check.ratio, factor, atol=0.02) and check.mismatch == expect
+    check = ColourDepthCheck(0.96, 1.08)
+    for _ in range(20):
+        check.add(_rot([0.0, 0.2, 0.0]), _rot([0.0, 0.3, 0.0]))  # below 0.5 deg: no evidence
+    assert check.pairs == 0 and not check.mismatch

@@ -100,7 +100,7 @@ def test_flow_and_depth_prior_are_consistent_with_truth():
     import gtsam
 
     encs, truth = make_chain(8, drift=0.0, rot_noise_deg=0.0, seed=2)
-    g = SubmapGraph(GraphConfig(), monocular=True)
+    g = SubmapGraph(GraphConfig(flow_effective_points=0.0), monocular=True)  # per-match information
     for e in encs:
         g.add_submap(e)
     n = 24

@@ -151,7 +151,9 @@ class Pipeline:
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
             elif pc.track_icp or getattr(self.encoder, "use_icp", False):
-                T_ref_cur = refine_by_icp(frame_depth(self.tracker.ref), frame.depth, self.intrinsics, T_ref_cur)
+                from gsslam.frontend.icp import refine_relative_pose
+
+                T_ref_cur = refine_relative_pose(frame_depth(self.tracker.ref), frame.depth, self.intrinsics, T_ref_cur)
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
@@ -401,17 +403,6 @@ class Pipeline:
     def current_pose_estimate(self) -> np.ndarray:
         """Best guess of the latest camera pose (where a new chain is placed)."""
         return self.last_pose.copy()
-
-
-def refine_by_icp(depth_ref, depth_cur, intr: CameraIntrinsics, T_ref_cur: np.ndarray) -> np.ndarray:
-    """``T_ref_cur`` refined by dense ICP of the two depth maps (full resolution), or as given."""
-    from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane
-    from gsslam.geometry import invert_T
-
-    if depth_cur is None:
-        return T_ref_cur
-    res = icp_point_to_plane(depth_ref, depth_cur, intr, invert_T(T_ref_cur), strides=TRACK_STRIDES)
-    return invert_T(res.T_tgt_src) if res.ok else T_ref_cur
 
 
 def frame_depth(frame: Frame | None) -> np.ndarray:

@@ -176,3 +176,15 @@ def icp_point_to_plane(
     if np.linalg.norm(E[:3, 3]) > max_step_m or np.degrees(np.linalg.norm(so3_log(E[:3, :3]))) > max_step_deg:
         return IcpResult(np.asarray(T_init, float), False, inliers, rmse, cond, "moved_far")
     return IcpResult(T, True, inliers, rmse, cond)
+
+
+def refine_relative_pose(
+    depth_ref: np.ndarray,  # [H, W] metres, the reference keyframe
+    depth_cur: np.ndarray | None,  # [H, W] metres, the tracked frame
+    intr: CameraIntrinsics,
+    T_ref_cur: np.ndarray,  # [4, 4] e.g. from PnP
+) -> np.ndarray:  # [4, 4] T_ref_cur refined by ICP at TRACK_STRIDES, or as given when ICP refuses
+    if depth_cur is None:
+        return T_ref_cur
+    res = icp_point_to_plane(depth_ref, depth_cur, intr, np.linalg.inv(T_ref_cur), strides=TRACK_STRIDES)
+    return np.linalg.inv(res.T_tgt_src) if res.ok else T_ref_cur

@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     for s in a.kw:
         k, v = s.split("=", 1)
         kw[k] = yaml.safe_load(v)
-    if a.mode == "mono" and (a.dataset == "tum" or kw.get("base", "tum") == "tum"):
+    if a.mode == "mono" and (a.dataset == "tum" or (a.dataset == "playback" and kw.get("base", "tum") == "tum")):
         kw.setdefault("with_depth", False)
     ds = open_dataset(a.dataset, a.seq, **kw)
     overrides = ["mapper.enabled=false", f"loop.enabled={'true' if a.loops == 'on' else 'false'}", *a.overrides]

@@ -74,7 +74,7 @@ class GraphConfig:
     adjacency_sigma_m: float = (
         0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
     )
-    flow_effective_points: float = 1.0  # >0: a flow factor weighs as this many independent matches (0: per match)
+    flow_effective_points: float = 10.0  # >0: a flow factor weighs as this many independent matches (0: per match)
     loop_sigma_m: float = 0.05
     depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
     prior_rot_sigma: float = 1e-4

@@ -60,6 +60,11 @@ class EncoderConfig:
         False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
     )
     odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
+    rgbd_icp: bool = False  # RGB-D: always refine PnP poses by dense point-to-plane ICP on depth (frontend/icp.py)
+    rgbd_icp_auto: bool = True  # RGB-D: use ICP once PnP and ICP rotations disagree (colour not calibrated to depth)
+    rgbd_icp_auto_min_ratio: float = 0.96  # PnP / ICP rotation ratio below this: colour and depth disagree
+    rgbd_icp_auto_max_ratio: float = 1.08  # above this (ICP itself turns ~3 % short on TUM teddy: 1.02-1.05)
+    rgbd_icp_direct: bool = True  # and register each keyframe directly to the submap's frame 0 by ICP
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
@@ -73,6 +78,7 @@ class GraphConfig:
     adjacency_sigma_m: float = (
         0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
     )
+    flow_effective_points: float = 10.0  # >0: a flow factor weighs as this many independent matches (0: per match)
     loop_sigma_m: float = 0.05
     depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
     prior_rot_sigma: float = 1e-4
@@ -187,6 +193,9 @@ class PipelineConfig:
     cross_flow_back: int = 3  # each new keyframe gets flow to keyframes this far back in the previous submap
     flow_points: int = 1000  # correspondences per cross-submap keyframe pair
     max_time_gap_s: float = 0.5  # a longer gap between frames is an event; mono starts a new chain there
+    pose_outlier_max_dev_m: float = 0.02  # non-keyframe this far (+ half its keyframes' gap) off their path: interpolated (0: off)
+    pose_outlier_max_dev_deg: float = 3.0  # the same for the rotation (+ half the keyframes' rotation)
+    track_icp: bool = False  # RGB-D: refine each tracked frame's PnP pose by ICP against its keyframe's depth
 
 
 @dataclass(frozen=True)
@@ -377,6 +386,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.odometry_depth_diff_max": POS,
     "encoder.min_texture_gradient": NONNEG,
     "encoder.mono_dis_preset": ("", "ultrafast", "fast", "medium"),
+    "encoder.rgbd_icp_auto_min_ratio": POS,
+    "encoder.rgbd_icp_auto_max_ratio": POS,
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,
@@ -395,6 +406,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.flow_max_points": _ge(1),
     "graph.wildfire_threshold": NONNEG,
     "graph.batch_max_iterations": _ge(0),
+    "graph.flow_effective_points": NONNEG,
     "mapper.device": ("auto", "cpu", "cuda"),
     "mapper.rasterizer": ("auto", "c", "torch", "gsplat", "fast"),  # gsslam.mapping.rasterize.BACKENDS
     "mapper.max_side": _ge(16),
@@ -467,6 +479,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "pipeline.cross_flow_back": _ge(0),
     "pipeline.flow_points": _ge(1),
     "pipeline.max_time_gap_s": POS,
+    "pipeline.pose_outlier_max_dev_m": NONNEG,
+    "pipeline.pose_outlier_max_dev_deg": NONNEG,
 }
 
 

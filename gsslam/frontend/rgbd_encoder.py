@@ -33,14 +33,16 @@ from gsslam.frontend.encoder import (
     robust_depth_stats,
 )
 from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, resize_flow, textured_mask
+from gsslam.frontend.icp import icp_point_to_plane
 from gsslam.frontend.pose_estimation import pnp_from_flow, pose_distance
-from gsslam.geometry import depth_to_points, invert_T
+from gsslam.geometry import depth_to_points, invert_T, so3_log
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
 
 FB_THRESHOLD_PX = 1.0  # at point-map resolution
 EDGE_CONFIDENCE = 0.3
+ICP_STRIDES = (4, 2)  # at point-map resolution (TUM 320x240: 80x60 then 160x120 points)
 
 
 def _open3d():
@@ -97,6 +99,46 @@ def rgbd_odometry(
     return bool(ok), np.asarray(T, dtype=np.float64)
 
 
+class ColourDepthCheck:
+    """Do colour (PnP on flow, colour intrinsics) and depth (ICP) agree on how far the camera turns?
+
+    With the colour camera's focal length wrong by a factor ``k`` (unregistered Kinect v1 depth with the
+    depth camera's 585 px used for colour too: 7-Scenes) PnP rotations come out ``1/k`` of the ICP
+    ones; on registered, calibrated data the ratio is 1.02-1.05 (TUM teddy: point-to-plane ICP turns
+    slightly short), with colour intrinsics 11 % too long 0.90-0.95 (docs/results.md). ``ratio`` is the
+    least-squares factor between PnP and ICP rotation vectors over every pair so far (pairs turning
+    less than 0.5 deg are skipped); ``mismatch`` once ``min_pairs`` pairs put it outside
+    ``[min_ratio, max_ratio]``, and it stays set (no flip-flopping between the two pose sources).
+    """
+
+    def __init__(self, min_ratio: float, max_ratio: float, min_pairs: int = 8) -> None:
+        self.min_ratio, self.max_ratio = min_ratio, max_ratio
+        self.min_pairs = min_pairs
+        self.pairs = 0
+        self._ab = 0.0
+        self._bb = 0.0
+        self._latched = False
+
+    def add(self, T_pnp: np.ndarray, T_icp: np.ndarray) -> None:  # [4, 4] each, the same motion
+        a, b = so3_log(T_pnp[:3, :3]), so3_log(T_icp[:3, :3])
+        if np.degrees(np.linalg.norm(b)) < 0.5:
+            return
+        self.pairs += 1
+        self._ab += float(a @ b)
+        self._bb += float(b @ b)
+        r = self.ratio
+        if self.pairs >= self.min_pairs and not self.min_ratio <= r <= self.max_ratio:
+            self._latched = True
+
+    @property
+    def ratio(self) -> float:
+        return self._ab / self._bb if self._bb > 0 else float("nan")
+
+    @property
+    def mismatch(self) -> bool:
+        return self._latched
+
+
 class RGBDEncoder:
     """Sub-track encoder for RGB-D input (metric units: metres)."""
 
@@ -106,6 +148,12 @@ class RGBDEncoder:
         self.cfg = cfg
         self.flow = flow
         self.rng = np.random.default_rng(seed)
+        self.check = ColourDepthCheck(cfg.rgbd_icp_auto_min_ratio, cfg.rgbd_icp_auto_max_ratio)
+
+    @property
+    def use_icp(self) -> bool:
+        """ICP poses instead of PnP-on-colour-flow poses (forced, or colour found inconsistent with depth)."""
+        return self.cfg.rgbd_icp or (self.cfg.rgbd_icp_auto and self.check.mismatch)
 
     def _depth(self, depth: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:  # [H, W] -> [h, w]
         d = resize_depth(depth, intr)
@@ -151,6 +199,14 @@ class RGBDEncoder:
             )
             meta["pnp_failed"].append(i)
             T = np.eye(4)
+        if self.cfg.rgbd_icp or self.cfg.rgbd_icp_auto:
+            icp = icp_point_to_plane(depths[i - 1], depths[i], intr, T, strides=ICP_STRIDES)
+            if icp.ok and res.T_tgt_src is not None:
+                self.check.add(res.T_tgt_src, icp.T_tgt_src)
+            if icp.ok and self.use_icp:
+                T = icp.T_tgt_src
+            elif not icp.ok:
+                meta["icp_rejected"].append((i, icp.reason))
         if self.cfg.rgbd_odometry:
             ok, T_odo = rgbd_odometry((imgs[i - 1], depths[i - 1]), (imgs[i], depths[i]), intr, T, self.cfg)
             dt, dr = pose_distance(T, T_odo)
@@ -179,6 +235,8 @@ class RGBDEncoder:
             "pnp_failed": [],
             "odometry_rejected": [],
             "direct_rejected": [],
+            "icp_rejected": [],
+            "icp_direct_rejected": [],
             "degenerate": False,
         }
         n = len(frames)
@@ -187,6 +245,13 @@ class RGBDEncoder:
             T_i_prev = self._frame_to_frame(frames, imgs, depths, i, intr, meta)
             T_chain = T_local[i - 1] @ invert_T(T_i_prev)  # T_0_i
             T_local[i] = T_chain
+            if self.use_icp and self.cfg.rgbd_icp_direct and i > 1:
+                # keyframe-to-keyframe: frame i straight against frame 0 stops the chained drift
+                icp = icp_point_to_plane(depths[0], depths[i], intr, invert_T(T_chain), strides=ICP_STRIDES)
+                if icp.ok:
+                    T_local[i] = invert_T(icp.T_tgt_src)
+                else:
+                    meta["icp_direct_rejected"].append((i, icp.reason))
             if self.cfg.rgbd_odometry and i > 1:
                 ok, T_i_0 = rgbd_odometry(
                     (imgs[0], depths[0]), (imgs[i], depths[i]), intr, invert_T(T_chain), self.cfg
@@ -213,6 +278,8 @@ class RGBDEncoder:
         ).astype(np.float32)
         meta["depth_stats"] = [robust_depth_stats(d) for d in depths]
         meta["scale_source"] = "metric"
+        meta["pnp_icp_rotation_ratio"] = self.check.ratio
+        meta["use_icp"] = self.use_icp
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
 
 

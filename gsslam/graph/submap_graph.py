@@ -161,9 +161,16 @@ class SubmapGraph:
         if len(idx) < 3:
             log.debug("flow %d->%d: %d usable matches, no factor", corr.src_index, corr.tgt_index, len(idx))
             return None
+        weight = np.clip(corr.weight[idx], 0.0, 1.0)
+        if self.cfg.flow_effective_points > 0:
+            # The N matches of one keyframe pair are not N independent measurements of the pair's
+            # relative pose (they share the flow field and the local poses); as for the adjacency
+            # points, the factor gets the information of flow_effective_points matches, so that a
+            # chain of flow factors stays as compliant as its real error and a loop can bend it.
+            weight = weight * min(1.0, self.cfg.flow_effective_points / len(idx))
         factor = make_flow_factor(
             submap_key(ia), submap_key(ib), corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K,
-            weight=np.clip(corr.weight[idx], 0.0, 1.0), group="sim3",
+            weight=weight, group="sim3",
             L_a=self._subs[ia].T_local_cam[ja], L_b=self._subs[ib].T_local_cam[jb], **flow_kwargs(self.cfg),
         )  # fmt: skip
         return self.backend.add_factor(factor)

@@ -87,6 +87,7 @@ class Pipeline:
         self.last_good = None
         self.last_pose: np.ndarray = np.eye(4)
         self.n_frames = 0
+        self.n_pose_outliers = 0  # non-keyframe poses replaced by interpolation (frame_poses)
         self.last_good: Frame | None = None  # last non-keyframe tracked successfully
         self.cross_flow = CrossFlowFeed(cfg, intrinsics, self.flow, self.rng)
         self.map_stage = None  # gsslam.slam.map_stage.MapStage when cfg.mapper.enabled
@@ -142,6 +143,10 @@ class Pipeline:
             )
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
+            elif pc.track_icp or getattr(self.encoder, "use_icp", False):
+                from gsslam.frontend.icp import refine_relative_pose
+
+                T_ref_cur = refine_relative_pose(frame_depth(self.tracker.ref), frame.depth, self.intrinsics, T_ref_cur)
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
@@ -352,6 +357,16 @@ class Pipeline:
                 out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
         # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
         out.update(interpolate_poses(out, [m.cur_index for m, _ in self.pending], self.timestamps))
+        if pc.pose_outlier_max_dev_m > 0:  # and so is one whose PnP pose leaves its keyframes' path
+            from gsslam.frontend.pose_outliers import find_pose_outliers
+
+            bad = find_pose_outliers(
+                out, set(kf_poses), self.timestamps, pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg
+            )
+            for f in bad:
+                out.pop(f)
+            out.update(interpolate_poses(out, bad, self.timestamps))
+            self.n_pose_outliers = len(bad)
         return dict(sorted(out.items()))
 
     def frame_chains(self) -> dict[int, int]:

@@ -100,7 +100,7 @@ def test_flow_and_depth_prior_are_consistent_with_truth():
     import gtsam
 
     encs, truth = make_chain(8, drift=0.0, rot_noise_deg=0.0, seed=2)
-    g = SubmapGraph(GraphConfig(), monocular=True)
+    g = SubmapGraph(GraphConfig(flow_effective_points=0.0), monocular=True)  # per-match information
     for e in encs:
         g.add_submap(e)
     n = 24
@@ -143,3 +143,30 @@ def test_bad_submaps_are_rejected():
         g.add_submap(encs[2])
     with pytest.raises(GraphError, match="only 1 submaps"):
         g.add_loop(0, 5, np.ones((5, 3)), np.ones((5, 3)))
+
+
+def test_flow_effective_points_scales_the_factor_information():
+    import dataclasses
+
+    import gtsam
+
+    encs, truth = make_chain(4, drift=0.0, rot_noise_deg=0.0, seed=2)
+    world = lambda f: np.linalg.inv(truth[0]) @ truth[f]  # noqa: E731
+    enc, j = encs[0], 5
+    uv = np.stack(np.meshgrid(np.arange(16.0), np.arange(12.0)), -1).reshape(-1, 2)
+    X = enc.points_cam[j].reshape(-1, 3)
+    Xw = X * enc.meta["unit"] @ world(5)[:3, :3].T + world(5)[:3, 3]
+    Tb = np.linalg.inv(world(7))
+    Xb = Xw @ Tb[:3, :3].T + Tb[:3, 3]
+    corr = Correspondences(5, 7, uv, Xb[:, :2] / Xb[:, 2:] * 20.0 + [7.5, 5.5], X[:, 2], np.ones(len(uv)))
+    errors = []
+    for n_eff in (0.0, 4.0):
+        g = SubmapGraph(dataclasses.replace(CFG, flow_effective_points=n_eff), monocular=True)
+        for e in encs:
+            g.add_submap(e)
+        h = g.add_flow(corr, INTR.K)
+        v = gtsam.Values(g.backend.values())
+        v.update(submap_key(1), v.atSimilarity3(submap_key(1)).retract(np.r_[0.0, 0.01, 0, 0, 0, 0, 0]))
+        errors.append(g.backend.factor(h).error(v))
+    # 192 matches weigh as 4: the whitened error (and the information) shrinks by 4 / 192
+    assert errors[0] > 0 and np.isclose(errors[1] / errors[0], 4 / len(uv), rtol=1e-6)

@@ -222,14 +222,14 @@ class Pipeline:
             flows = self.cross_flow.add(
                 chain, self.chains, self.keyframes, self.prev_frames, frames, self.map_stage is not None
             )
-            chain.graph.update()
+            self._update_graph(chain, sid, frames[-1].index)
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
             # was and continue with a new chain that starts at this submap's last keyframe.
-            self.events.append(Event(frames[-1].index, "graph", str(e).splitlines()[0]))
-            log.warning("graph update failed, starting a new chain: %s", str(e).splitlines()[0])
+            self.events.append(Event(frames[-1].index, "graph", str(e)))
+            log.warning("graph update failed, starting a new chain: %s", e)
             for idx in added:
                 self.keyframes.pop(idx, None)
             if chain.encodings and chain.encodings[-1] is enc:
@@ -243,6 +243,22 @@ class Pipeline:
             self._map_submap(chain, cid, sid, enc, frames, added, flows)
         self.prev_frames = frames
         self.window = [frames[-1]]
+
+    def _update_graph(self, chain: Chain, sid: int, frame_index: int) -> None:
+        """One iSAM2 update; factors the backend rejected (and rolled back) are reported as events.
+
+        Raises only when the new submap itself was rejected (then the caller starts a new chain).
+        """
+        from gsslam.graph.backend import RejectedError
+        from gsslam.graph.keys import submap_key
+
+        try:
+            chain.graph.update()
+        except RejectedError as e:
+            self.events.append(Event(frame_index, "rejected", str(e)))
+            if not chain.graph.backend.has_value(submap_key(sid)):
+                raise
+            log.warning("frame %d: %s", frame_index, e)
 
     def _map_submap(self, chain, cid, sid, enc, frames, added, flows) -> None:
         """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""

@@ -14,7 +14,7 @@ import time
 import gtsam
 import numpy as np
 
-from factors import make_flow_factor
+from gsslam.factors import make_flow_factor
 from gsslam.config import GraphConfig
 from gsslam.graph.backend import Backend
 from gsslam.graph.keys import keyframe_key

@@ -5,9 +5,9 @@ Variables: one ``gtsam.Similarity3`` per submap, ``S(i) = T_world_local_i``. A k
 
 Per new submap i (its frame 0 is frame K of submap i-1, ``T_local_cam[0] = I``):
 
-- a rigid alignment ``S(i-1)^-1 S(i) ~ T_local(i-1, K)`` (:mod:`factors.submap_alignment`),
-- a scale factor ``s_i = median D(i-1, K) / median D(i, 0)`` (:mod:`factors.scale`),
-- adjacency points of the shared frame ``S(i-1)(X(i-1, K)) - S(i)(X(i, 0))`` (:mod:`factors.points`).
+- a rigid alignment ``S(i-1)^-1 S(i) ~ T_local(i-1, K)`` (:mod:`gsslam.factors.submap_alignment`),
+- a scale factor ``s_i = median D(i-1, K) / median D(i, 0)`` (:mod:`gsslam.factors.scale`),
+- adjacency points of the shared frame ``S(i-1)(X(i-1, K)) - S(i)(X(i, 0))`` (:mod:`gsslam.factors.points`).
 
 Gauge: the first submap gets a Sim(3) prior fixing pose AND scale. With ``monocular=False`` (RGB-D,
 metric point maps) every submap also gets a strong prior keeping its scale at 1.
@@ -23,7 +23,7 @@ import logging
 
 import numpy as np
 
-from factors import (
+from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
     make_point_factor,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import S
 
-from factors import (
+from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
     make_point_factor,
@@ -61,7 +61,7 @@ def _flow_case(rng, group, offsets):
     La = _rigid(rng) if offsets else np.eye(4)
     Lb = _rigid(rng) if offsets else np.eye(4)
     # camera b = camera a moved a little, so the points stay visible
-    from factors import to_gtsam, to_matrix
+    from gsslam.factors import to_gtsam, to_matrix
 
     Ma = to_matrix(Ta) @ La
     delta = gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-0.1, 0.1, 3)), rng.uniform(-0.3, 0.3, 3)).matrix()
@@ -92,7 +92,7 @@ def test_flow_jacobians(group, offsets):
 @pytest.mark.parametrize("group", GROUPS)
 def test_flow_robust_jacobian_is_irls_weighted(group):
     """With robust weights, rows are the plain Jacobian scaled by sqrt(weight) of the current error."""
-    from factors import mixture_weights
+    from gsslam.factors import mixture_weights
 
     rng = np.random.default_rng(4)
     values, uv, d, uv_t, K, _, _ = _flow_case(rng, group, False)

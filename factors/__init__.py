@@ -9,6 +9,7 @@ from ._lie import to_gtsam, to_matrix
 from .depth_prior import make_depth_prior_factor
 from .errors import FactorInputError
 from .flow import make_flow_factor, mixture_weights
+from .keyframe_pose import make_keyframe_pose_factor
 from .points import make_point_factor
 from .scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
 from .submap_alignment import make_submap_alignment_factor
@@ -17,6 +18,7 @@ __all__ = [
     "FactorInputError",
     "make_depth_prior_factor",
     "make_flow_factor",
+    "make_keyframe_pose_factor",
     "make_point_factor",
     "make_scale_factor",
     "make_scale_prior_factor",

@@ -26,6 +26,7 @@ import numpy as np
 from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
+    make_keyframe_pose_factor,
     make_point_factor,
     make_scale_factor,
     make_scale_prior_factor,
@@ -207,6 +208,30 @@ class SubmapGraph:
             return None
         factor = make_depth_prior_factor(submap_key(i), z[ok], depth[ok], self.cfg.depth_prior_sigma)
         return self.backend.add_factor(factor)
+
+    def keyframe_anchor(self, frame_index: int) -> tuple[int, np.ndarray]:
+        """``(key, T_local_cam)``: the submap variable a keyframe's pose is expressed on, and its fixed
+        local pose [4, 4] (rigid, submap units): ``T_world_cam = rigid(S(key) T_local_cam)``."""
+        i, j = self.owner(frame_index)
+        return submap_key(i), self._subs[i].T_local_cam[j].copy()
+
+    def add_keyframe_pose_prior(
+        self,
+        frame_index: int,
+        T_world_cam: np.ndarray,  # [4, 4] rigid, in this graph's world
+        rot_sigma: float,
+        trans_sigma: float,
+        name: str | None = None,
+    ) -> int:
+        """A prior on a keyframe's pose, mapped onto its submap's variable (:mod:`gsslam.factors.keyframe_pose`)."""
+        key, L = self.keyframe_anchor(frame_index)
+        try:
+            factor = make_keyframe_pose_factor(
+                key, L, T_world_cam, rot_sigma, trans_sigma, "sim3"
+            )
+        except ValueError as e:
+            raise GraphError(f"keyframe {frame_index} pose prior: {e}") from e
+        return self.backend.add_factor(factor, name or f"keyframe pose prior x{frame_index}")
 
     def remove_factor(self, handle: int) -> None:
         self.backend.remove_factors([handle])

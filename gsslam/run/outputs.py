@@ -85,6 +85,8 @@ def write_outputs(
     ate, pair = ate_metrics(gt, traj, align)
     ate_kf, _ = ate_metrics(gt, kf_traj, align)
     ate_bb, _ = ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch else (None, None)
+    online = getattr(pipe, "online_poses", None)  # the pose process() returned for each frame
+    ate_on, _ = ate_metrics(gt, trajectory_of(pipe, online), align) if online else (None, None)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     peak_mb = peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
     metrics = {
@@ -102,6 +104,8 @@ def write_outputs(
         "ate": ate,
         "ate_keyframes": ate_kf,
         "ate_before_batch": ate_bb,
+        "ate_online": ate_on,
+        "frames_posed_online": len(online or {}),
         "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
         "interrupted": interrupted,
         "mapper": None,

@@ -83,6 +83,7 @@ class Pipeline:
         self.lost = 0
         self.last_good = None
         self.last_pose: np.ndarray = np.eye(4)
+        self.online_poses: dict[int, np.ndarray] = {}  # frame -> pose returned by process (as it arrived)
         self.n_frames = 0
         self.last_good: Frame | None = None  # last non-keyframe tracked successfully
         self.cross_flow = CrossFlowFeed(cfg, intrinsics, self.flow, self.rng)
@@ -92,6 +93,11 @@ class Pipeline:
 
             self.map_stage = MapStage(cfg.mapper, intrinsics)
         self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
+        self.plugins: list = []  # gsslam.slam.plugins.Plugin: user factors into the running graph
+
+    def add_plugin(self, plugin) -> None:
+        """Call ``plugin`` (a :class:`gsslam.slam.plugins.Plugin`) on new keyframes, submaps and the end."""
+        self.plugins.append(plugin)
 
     @property
     def n_flow_factors(self) -> int:
@@ -100,7 +106,14 @@ class Pipeline:
 
     # ---- per frame ---------------------------------------------------------------------------
 
-    def process(self, frame: Frame, retry: bool = False) -> None:
+    def process(self, frame: Frame, retry: bool = False) -> np.ndarray | None:
+        """Feed one frame; returns its current pose estimate ``T_world_cam`` [4, 4] (None if it has none).
+
+        The pose is the frame's tracked pose relative to its keyframe composed with that keyframe's
+        current (optimised, where the graph has it) pose, so it is available from the second frame on
+        in RGB-D; in mono once the keyframe has a point map (its first submap). The refined trajectory
+        of :meth:`frame_poses` after :meth:`finish` stays the better one.
+        """
         if (frame.intrinsics.width, frame.intrinsics.height) != (
             self.intrinsics.width,
             self.intrinsics.height,
@@ -112,7 +125,7 @@ class Pipeline:
         self.timestamps[frame.index] = frame.timestamp
         if not self.window:
             self._start_chain(frame)
-            return
+            return self._remember(frame.index, self.online_poses.get(frame.index))
         flow, matches, status = self.tracker.track(frame)
         T_ref_cur = None
         if status.ok and not self.monocular:
@@ -133,21 +146,63 @@ class Pipeline:
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
-            self.process(frame, retry=True)
-            return
+            return self.process(frame, retry=True)
         if not status.ok:
             self._tracking_failure(frame, status.reason)
-            return
+            return self.online_poses.get(frame.index)  # a new chain's origin, or None
         self.lost = 0
         self.frames_since_kf += 1
+        pose = self._remember(frame.index, self._tracked_pose(matches, T_ref_cur))
         if self.selector.is_keyframe(flow, self.frames_since_kf):
             self._add_keyframe(frame)
-            return
+            if frame.index in self.keyframes:  # its submap was just encoded: the graph's pose
+                pose = self._remember(frame.index, self._pose_now(frame.index))
+            return pose
         if self.monocular:
             self.pending.append((matches, len(self.chains) - 1))
         else:
             self.relative[frame.index] = (matches.ref_index, T_ref_cur)
         self.last_good = frame
+        return pose
+
+    # ---- online poses ------------------------------------------------------------------------
+
+    def _remember(self, index: int, pose: np.ndarray | None) -> np.ndarray | None:
+        if pose is not None:
+            self.online_poses[index] = pose
+            self.last_pose = pose
+        return None if pose is None else pose.copy()
+
+    def _pose_now(self, index: int) -> np.ndarray | None:
+        """Current ``T_world_cam`` of a keyframe: the graph's estimate, else its pose as it arrived."""
+        kf = self.keyframes.get(index)
+        if kf is not None and not self.chains[kf.chain].failed:
+            chain = self.chains[kf.chain]
+            try:
+                return chain.T_world_chain @ chain.graph.keyframe_pose(index)
+            except GsslamError:
+                pass
+        return self.online_poses.get(index)
+
+    def _tracked_pose(self, matches: FrameMatches, T_ref_cur: np.ndarray | None) -> np.ndarray | None:
+        """The frame's pose from its match to the reference keyframe (RGB-D: PnP already solved)."""
+        ref = matches.ref_index
+        T_world_ref = self._pose_now(ref)
+        if T_world_ref is None:
+            return None
+        if T_ref_cur is None:  # mono: PnP against the keyframe's point-map depth, once it has one
+            kf = self.keyframes.get(ref)
+            if kf is None:
+                return None
+            pc = self.cfg.pipeline
+            intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
+            depth = sample_depth(kf.depth, intr, self.intrinsics, matches.uv_ref)
+            T_ref_cur, _ = solve_relative_pose(
+                matches, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+            )
+            if T_ref_cur is None:
+                return None
+        return T_world_ref @ self._to_world_units(ref, T_ref_cur)
 
     def _tracking_failure(self, frame: Frame, reason: str) -> None:
         self.events.append(Event(frame.index, reason, f"tracking failed ({reason})"))
@@ -168,6 +223,7 @@ class Pipeline:
 
         T = self.current_pose_estimate()
         self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T))
+        self.online_poses[frame.index] = T.copy()
         self.window = [frame]
         self.prev_frames = []
         self.keyframe_order.append(frame.index)
@@ -223,6 +279,10 @@ class Pipeline:
                 chain, self.chains, self.keyframes, self.prev_frames, frames, self.map_stage is not None
             )
             self._update_graph(chain, sid, frames[-1].index)
+            if self.plugins:
+                self._call_plugins(chain, cid, "keyframe", [dict(frame_index=i) for i in added])
+                self._call_plugins(chain, cid, "submap", [dict(submap=sid, frame_index=frames[-1].index)])
+                self._update_graph(chain, sid, frames[-1].index)
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
@@ -260,6 +320,20 @@ class Pipeline:
                 raise
             log.warning("frame %d: %s", frame_index, e)
 
+    def _call_plugins(self, chain: Chain, cid: int, kind: str, calls: list[dict]) -> None:
+        from gsslam.slam.plugins import GraphEvent
+
+        for kw in calls:
+            idx = kw.get("frame_index")
+            ev = GraphEvent(kind, cid, chain.graph, chain.T_world_chain, timestamp=self.timestamps.get(idx), **kw)
+            for plugin in self.plugins:
+                try:
+                    getattr(plugin, f"on_{kind}")(ev)
+                except Exception as e:  # noqa: BLE001 - user code must not lose the run
+                    where = -1 if idx is None else idx
+                    self.events.append(Event(where, "plugin", f"{type(plugin).__name__}.on_{kind}: {e!r}"))
+                    log.warning("plugin %s.on_%s failed: %r", type(plugin).__name__, kind, e)
+
     def _map_submap(self, chain, cid, sid, enc, frames, added, flows) -> None:
         """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""
         try:
@@ -285,6 +359,16 @@ class Pipeline:
     def finish(self) -> None:
         """Encode the tail, batch-refine every chain's graph."""
         self.close_chain()
+        if self.plugins:
+            from gsslam.graph.backend import RejectedError
+
+            for cid, chain in enumerate(self.chains):
+                if chain.encodings and not chain.failed:
+                    self._call_plugins(chain, cid, "end", [{}])
+                    try:
+                        chain.graph.update()
+                    except RejectedError as e:
+                        self.events.append(Event(-1, "rejected", str(e)))
         if self.cfg.graph.final_batch_refinement:
             for chain in self.chains:
                 if chain.encodings and not chain.failed:
@@ -348,7 +432,8 @@ class Pipeline:
         return T
 
     def current_pose_estimate(self) -> np.ndarray:
-        """Best guess of the latest camera pose (where a new chain is placed)."""
+        """Best guess of the latest camera pose: the last pose :meth:`process` returned (or the latest
+        submap's last keyframe); a new chain is placed there."""
         return self.last_pose.copy()
 
 

@@ -1,0 +1,73 @@
+"""User factors in a real run: a keyframe pose prior through a plugin, the map following, bad factors."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from gsslam.config import load_config
+from gsslam.datasets.base import open_dataset
+from gsslam.graph.keys import keyframe_key
+from gsslam.slam.pipeline import Pipeline
+from gsslam.slam.plugins import Plugin
+
+pytestmark = pytest.mark.slow  # end-to-end runs
+
+FAST = ["mapper.enabled=false", "loop.enabled=false"]
+SHIFT = np.array([0.05, 0.0, 0.0])
+
+
+class Anchor(Plugin):
+    """On submap 1: pull its last keyframe 5 cm along x (tight prior); also add a factor on x23, which
+    has no value in the graph (its variables are submaps), to see it rejected by name."""
+
+    def __init__(self):
+        self.kf = None
+
+    def on_submap(self, ev):
+        if ev.submap != 1 or self.kf is not None:
+            return
+        self.kf = ev.frame_index
+        self.before = ev.keyframe_pose(self.kf)
+        self.submap_before = ev.graph.submap_pose(1)
+        self.first_before = ev.keyframe_pose(0)
+        target = self.before.copy()
+        target[:3, 3] += SHIFT
+        ev.add_keyframe_pose_prior(self.kf, target, 1e-5, 1e-5, name="user anchor")
+        noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
+        ev.add_factor(gtsam.PriorFactorPose3(keyframe_key(23), gtsam.Pose3(), noise), name="bad prior")
+
+
+def _run(bundled_tum, extra=(), plugin=None, n=None):
+    ds = open_dataset("tum", bundled_tum)
+    pipe = Pipeline(load_config(None, FAST + list(extra), mode="rgbd"), ds.intrinsics)
+    if plugin is not None:
+        pipe.add_plugin(plugin)
+    poses = [pipe.process(ds[i]) for i in range(n or len(ds))]
+    pipe.finish()
+    return pipe, poses
+
+
+def test_keyframe_prior_moves_the_keyframe_and_its_submap_and_bad_factors_are_rolled_back(bundled_tum):
+    plugin = Anchor()
+    pipe, _ = _run(bundled_tum, plugin=plugin)
+    assert plugin.kf is not None
+    graph = pipe.chains[0].graph
+    moved = graph.keyframe_pose(plugin.kf)[:3, 3] - plugin.before[:3, 3]
+    np.testing.assert_allclose(moved, SHIFT, atol=1e-3)  # measured: 5.00 cm, off-axis < 0.01 mm
+    sub_moved = graph.submap_pose(1)[:3, 3] - plugin.submap_before[:3, 3]
+    np.testing.assert_allclose(sub_moved, SHIFT, atol=2e-3)  # the submap goes with it (measured 5.00 cm)
+    # submap 0 stays: the gauge prior holds it (measured 0.14 mm)
+    assert np.linalg.norm(graph.keyframe_pose(0)[:3, 3] - plugin.first_before[:3, 3]) < 1e-3
+    rejected = [e for e in pipe.events if e.kind == "rejected"]
+    assert len(rejected) == 1 and "'bad prior' (PriorFactorPose3 on x23): missing key x23" in rejected[0].detail
+    assert len(pipe.chains) == 1 and not pipe.chains[0].failed  # the run went on in the same graph
+
+
+def test_a_pose_for_every_frame_as_it_arrives(bundled_tum):
+    pipe, poses = _run(bundled_tum, n=40)
+    assert all(p is not None and p.shape == (4, 4) for p in poses)  # from frame 0 (the origin) on
+    assert np.allclose(poses[0], np.eye(4))
+    assert not np.allclose(poses[5], np.eye(4))  # before the first submap (frame ~23) the pose moves
+    assert len(pipe.online_poses) == 40

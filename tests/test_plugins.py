@@ -71,3 +71,48 @@ def test_a_pose_for_every_frame_as_it_arrives(bundled_tum):
     assert np.allclose(poses[0], np.eye(4))
     assert not np.allclose(poses[5], np.eye(4))  # before the first submap (frame ~23) the pose moves
     assert len(pipe.online_poses) == 40
+
+
+class ShiftAtEnd(Plugin):
+    """At the end of the run: pull the chain's last keyframe 5 cm along x, with a tight prior."""
+
+    def on_end(self, ev):
+        self.kf = max(ev.graph.keyframe_poses())
+        target = ev.keyframe_pose(self.kf)
+        target[:3, 3] += SHIFT
+        self.submap = ev.graph.num_submaps - 1
+        self.submap_before = ev.graph.submap_pose(self.submap)
+        ev.add_keyframe_pose_prior(self.kf, target, 1e-5, 1e-5, name="end anchor")
+
+
+def test_the_map_follows_a_plugin_factor(bundled_tum):
+    import torch
+
+    torch.set_num_threads(1)  # the CPU rasterizer's threads spin on shared cores
+    small = [
+        "mapper.enabled=true", "mapper.max_side=80", "mapper.iterations=10", "mapper.pose_iterations=5",
+        "mapper.final_iterations_per_keyframe=5", "mapper.device=cpu", "mapper.final_pose_iterations=0",
+    ]  # fmt: skip
+    plugin = ShiftAtEnd()
+    ds = open_dataset("tum", bundled_tum)
+    pipe = Pipeline(load_config(None, FAST + small, mode="rgbd"), ds.intrinsics)
+    pipe.add_plugin(plugin)
+    seen = []
+    mapper = pipe.map_stage.mapper
+    follow = mapper.on_poses_updated
+
+    def spy(submaps, keyframes):
+        seen.append((dict(submaps), follow(submaps, keyframes)))
+        return seen[-1][1]
+
+    mapper.on_poses_updated = spy
+    for i in range(36):
+        pipe.process(ds[i])
+    pipe.finish()
+    graph = pipe.chains[0].graph
+    moved = graph.submap_pose(plugin.submap)[:3, 3] - plugin.submap_before[:3, 3]
+    np.testing.assert_allclose(moved, SHIFT, atol=2e-3)
+    gid = pipe.map_stage.global_id(0, plugin.submap)
+    last_submaps, n_moved = seen[-1]
+    np.testing.assert_allclose(last_submaps[gid], graph.submap_pose(plugin.submap), atol=1e-9)
+    assert n_moved > 0  # the submap's Gaussians moved with it

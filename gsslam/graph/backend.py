@@ -84,6 +84,11 @@ def _at(values: gtsam.Values, key: int, type_name: str):
     return getattr(values, f"at{type_name}")(key)
 
 
+def _dim(values: gtsam.Values, key: int, type_name: str) -> int:
+    v = _at(values, key, type_name)
+    return int(np.size(v)) if isinstance(v, (float, int, np.ndarray)) else int(v.dim())
+
+
 def _keys(factor) -> str:
     return ",".join(gtsam.DefaultKeyFormatter(k) for k in factor.keys())
 
@@ -184,8 +189,11 @@ class Backend:
         try:
             result = self._send()
         except Exception as e:  # noqa: BLE001 - gtsam and user factors throw anything; we roll back
-            rejected += self._recover(e)
-            result = self._send()  # the rest; _recover made sure it is solvable
+            self._rollback()
+            result = self._retry_with_qr(e)
+            if result is None:
+                rejected += self._blame(e)
+                result = self._send()  # the rest; _blame made sure it is solvable
         for _ in range(extra_iterations):
             result = self._isam.update()
         self._estimate = None
@@ -240,10 +248,8 @@ class Backend:
             if k not in used
         ]
 
-    def _recover(self, error: Exception) -> list[Rejection]:
-        """iSAM2 threw: rebuild it from the last good state, then drop the buffered culprits."""
-        cause = _first_line(error)
-        log.debug("iSAM2 update failed (%s); rolling back", cause)
+    def _rollback(self) -> None:
+        """iSAM2 threw mid-update (it is half-changed): rebuild it from the factors it held before."""
         theta = self._isam.getLinearizationPoint()
         old = gtsam.Values()
         for k in theta.keys():
@@ -258,8 +264,65 @@ class Backend:
         self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
         self._to_remove = []
         self._estimate = None
+        self._sent_graph, self._sent_values = graph, old
+
+    def _retry_with_qr(self, error: Exception) -> gtsam.ISAM2Result | None:
+        """An indeterminate system under Cholesky may only be poorly conditioned: QR (slower, but
+        without squaring the condition number) solves it; the backend keeps QR from then on."""
+        if "ndeterminate" not in str(error) or self._params.getFactorization() == "QR":
+            return None
+        near = re.search(r"variable\s+(\d+)", str(error))
+        if near is None or self._new_values.exists(int(near.group(1))) or not self._new_values_determined():
+            return None  # a new variable is under-constrained: QR would hide it (it does not check rank)
+        self._params.setFactorization("QR")
+        sent = list(self._index)
+        self._isam = gtsam.ISAM2(self._params)
+        res = self._isam.update(self._sent_graph, self._sent_values)
+        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
+        try:
+            result = self._send()
+        except Exception:  # noqa: BLE001 - not a conditioning problem: back to Cholesky, blame factors
+            self._params.setFactorization("CHOLESKY")
+            self._rollback()
+            return None
+        log.warning(
+            "iSAM2 (Cholesky) failed: %s; solved with QR factorization, which the graph uses from now on",
+            _first_line(error),
+        )
+        return result
+
+    def _new_values_determined(self) -> bool:
+        """Does each new variable get full-rank information from the buffered factors on it alone?"""
+        values = gtsam.Values(self._sent_values)
+        values.insert(self._new_values)
+        for k in self._new_values.keys():
+            info = None
+            for h in self._pending:
+                f = self._factors[h]
+                keys = list(f.keys())
+                if k not in keys:
+                    continue
+                try:
+                    A, _ = f.linearize(values).jacobian()
+                except Exception:  # noqa: BLE001 - a factor that cannot linearize is for _blame
+                    return False
+                dims = [_dim(values, kk, self._types[kk]) for kk in keys]
+                start = sum(dims[: keys.index(k)])
+                Ak = np.asarray(A)[:, start : start + dims[keys.index(k)]]
+                info = Ak.T @ Ak if info is None else info + Ak.T @ Ak
+            if info is None:
+                return False
+            ev = np.linalg.eigvalsh(info)
+            if ev[0] <= 1e-9 * max(ev[-1], 1e-300):
+                return False
+        return True
+
+    def _blame(self, error: Exception) -> list[Rejection]:
+        """Drop the buffered culprits of a failed update (iSAM2 was rolled back)."""
+        cause = _first_line(error)
+        graph = self._sent_graph
         # blame: each buffered factor whose removal alone makes the system solvable
-        values = gtsam.Values(old)
+        values = gtsam.Values(self._sent_values)
         values.insert(self._new_values)
         blamed = [h for h in self._pending if self._solvable(graph, values, skip=h)]
         if blamed and (len(blamed) < len(self._pending) or len(self._pending) == 1):

@@ -35,7 +35,9 @@ from .errors import FactorInputError
 def _rigid(name: str, T) -> np.ndarray:
     T = check_shape(name, T, (4, 4))
     if not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-5) or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise FactorInputError(f"{name} must be a rigid 4x4 transform (orthonormal rotation, last row 0 0 0 1)")
+        raise FactorInputError(
+            f"{name} must be a rigid 4x4 transform (orthonormal rotation, last row 0 0 0 1)"
+        )
     return T
 
 
@@ -74,7 +76,9 @@ def make_keyframe_pose_factor(
     noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
-        r, J = keyframe_pose_residual(read_transform(values, this.keys()[0], group), L, M, group, H is not None)
+        r, J = keyframe_pose_residual(
+            read_transform(values, this.keys()[0], group), L, M, group, H is not None
+        )
         fill(H, 0, J)
         return r
 

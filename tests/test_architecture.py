@@ -141,7 +141,10 @@ FORBIDDEN = {
     **{base: {"slam", "run", "cli", "bench", "frontend", "graph", "mapping", "loop", "datasets", "viz"}
        for base in ("config", "types", "geometry", "imaging", "errors")},
 }  # fmt: skip
-PURE = {"eval": {"eval", "types", "geometry", "imaging", "errors"}, "io": {"io", "types", "geometry", "errors"}}
+PURE = {
+    "eval": {"eval", "types", "geometry", "imaging", "errors"},
+    "io": {"io", "types", "geometry", "errors"},
+}
 
 
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith("gsslam.")))
@@ -158,9 +161,15 @@ def test_imports_flow_one_way(module):
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if _layer(m) == "factors"))
 def test_factors_need_only_gtsam_and_numpy(module):
     targets = {t for t, _, _ in _imports(module)}
-    bad = {t for t in targets if t.split(".")[0] == "torch" or (t.startswith("gsslam") and _layer(t) != "factors")}
+    bad = {
+        t
+        for t in targets
+        if t.split(".")[0] == "torch" or (t.startswith("gsslam") and _layer(t) != "factors")
+    }
     assert not bad, f"{module} imports {sorted(bad)}"
-    assert not any(t.split(".")[0] == "factors" for t in targets), f"{module}: import gsslam.factors, not factors"
+    assert not any(t.split(".")[0] == "factors" for t in targets), (
+        f"{module}: import gsslam.factors, not factors"
+    )
 
 
 def test_no_top_level_factors_package_is_installed():

@@ -61,7 +61,9 @@ def test_keyframe_prior_moves_the_keyframe_and_its_submap_and_bad_factors_are_ro
     # submap 0 stays: the gauge prior holds it (measured 0.14 mm)
     assert np.linalg.norm(graph.keyframe_pose(0)[:3, 3] - plugin.first_before[:3, 3]) < 1e-3
     rejected = [e for e in pipe.events if e.kind == "rejected"]
-    assert len(rejected) == 1 and "'bad prior' (PriorFactorPose3 on x23): missing key x23" in rejected[0].detail
+    assert (
+        len(rejected) == 1 and "'bad prior' (PriorFactorPose3 on x23): missing key x23" in rejected[0].detail
+    )
     assert len(pipe.chains) == 1 and not pipe.chains[0].failed  # the run went on in the same graph
 
 

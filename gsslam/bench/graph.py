@@ -14,8 +14,8 @@ import time
 import gtsam
 import numpy as np
 
-from gsslam.factors import make_flow_factor
 from gsslam.config import GraphConfig
+from gsslam.factors import make_flow_factor
 from gsslam.graph.backend import Backend
 from gsslam.graph.keys import keyframe_key
 from gsslam.graph.noise import isam_params

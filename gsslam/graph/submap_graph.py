@@ -23,6 +23,8 @@ import logging
 
 import numpy as np
 
+from gsslam.config import GraphConfig
+from gsslam.errors import GsslamError
 from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
@@ -35,8 +37,6 @@ from gsslam.factors import (
     to_gtsam,
     to_matrix,
 )
-from gsslam.config import GraphConfig
-from gsslam.errors import GsslamError
 from gsslam.graph.backend import Backend
 from gsslam.graph.keys import submap_key
 from gsslam.graph.noise import flow_kwargs, gauge_prior_noise
@@ -223,12 +223,13 @@ class SubmapGraph:
         trans_sigma: float,
         name: str | None = None,
     ) -> int:
-        """A prior on a keyframe's pose, mapped onto its submap's variable (:mod:`gsslam.factors.keyframe_pose`)."""
+        """A prior on a keyframe's pose, mapped onto its submap's variable.
+
+        See :mod:`gsslam.factors.keyframe_pose`; ``name`` appears in the backend's messages.
+        """
         key, L = self.keyframe_anchor(frame_index)
         try:
-            factor = make_keyframe_pose_factor(
-                key, L, T_world_cam, rot_sigma, trans_sigma, "sim3"
-            )
+            factor = make_keyframe_pose_factor(key, L, T_world_cam, rot_sigma, trans_sigma, "sim3")
         except ValueError as e:
             raise GraphError(f"keyframe {frame_index} pose prior: {e}") from e
         return self.backend.add_factor(factor, name or f"keyframe pose prior x{frame_index}")

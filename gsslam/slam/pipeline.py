@@ -198,7 +198,12 @@ class Pipeline:
             intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
             depth = sample_depth(kf.depth, intr, self.intrinsics, matches.uv_ref)
             T_ref_cur, _ = solve_relative_pose(
-                matches, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+                matches,
+                depth,
+                self.intrinsics.K,
+                pc.min_pnp_inliers,
+                pc.min_pnp_inlier_ratio,
+                pc.pnp_threshold_px,
             )
             if T_ref_cur is None:
                 return None
@@ -325,7 +330,9 @@ class Pipeline:
 
         for kw in calls:
             idx = kw.get("frame_index")
-            ev = GraphEvent(kind, cid, chain.graph, chain.T_world_chain, timestamp=self.timestamps.get(idx), **kw)
+            ev = GraphEvent(
+                kind, cid, chain.graph, chain.T_world_chain, timestamp=self.timestamps.get(idx), **kw
+            )
             for plugin in self.plugins:
                 try:
                     getattr(plugin, f"on_{kind}")(ev)

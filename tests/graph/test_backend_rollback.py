@@ -54,7 +54,8 @@ def test_missing_key_is_named_and_the_rest_applies(chain):
 
 
 @pytest.mark.parametrize(
-    "fn, cause", [(_zero_jacobian, "Indeterminate linear system .* near variable x2"), (_throws, "ValueError")]
+    "fn, cause",
+    [(_zero_jacobian, "Indeterminate linear system .* near variable x2"), (_throws, "ValueError")],
 )
 def test_factor_that_breaks_isam2_is_rolled_back(chain, fn, cause):
     chain.add_value(X(2), gtsam.Pose3())

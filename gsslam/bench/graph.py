@@ -126,7 +126,9 @@ def run_one(
             backend.add_value(B(k), gtsam.imuBias.ConstantBias())
             if k == 0:
                 backend.add_factor(
-                    gtsam.PriorFactorVector(V(0), _velocity(0, per_lap), gtsam.noiseModel.Isotropic.Sigma(3, 0.01))
+                    gtsam.PriorFactorVector(
+                        V(0), _velocity(0, per_lap), gtsam.noiseModel.Isotropic.Sigma(3, 0.01)
+                    )
                 )
                 backend.add_factor(
                     gtsam.PriorFactorConstantBias(

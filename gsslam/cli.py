@@ -1,13 +1,27 @@
 """The ``gsslam`` command line: a thin layer over the library.
 
-Heavy modules are imported inside each command. Errors the library raises on purpose
-(:class:`gsslam.errors.GsslamError`) are printed as one line and exit with status 2.
+Heavy modules are imported inside each command. Every error is printed as one line on stderr
+(``error: ...``), never a traceback (``-v`` logs it), and the exit status says what happened
+(docs/run_folders.md):
+
+==========  ===============================================================================
+status      meaning
+==========  ===============================================================================
+0           success
+1           runtime failure: an unexpected error inside gsslam or the machine (a bug, out of
+            memory, disk full); rerun with ``-v`` for the traceback
+2           usage or input error: bad arguments, options or config values, a malformed or
+            missing input file, an unusable output folder; the message names what to fix
+130 / 143   interrupted by SIGINT (Ctrl-C) / SIGTERM; a run writes the outputs it has first
+==========  ===============================================================================
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
@@ -97,9 +111,12 @@ def run_cmd(
     set_: Annotated[
         Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
     ] = None,
-    max_frames: Annotated[Optional[int], typer.Option(help="Use only the first N frames.")] = None,
+    max_frames: Annotated[Optional[int], typer.Option(min=1, help="Use only the first N frames.")] = None,
     intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace an older run in OUT (removes only gsslam's own files).")
+    ] = False,
     dataset_arg: Annotated[
         Optional[list[str]],
         typer.Option("--dataset-arg", help="Loader option KEY=VALUE (YAML value), e.g. image_topic=/cam/rgb"),
@@ -108,7 +125,10 @@ def run_cmd(
         Optional[str], typer.Option(help="Also record a viewer file: rerun (OUT/run.rrd).")
     ] = None,
 ) -> None:
-    """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT."""
+    """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT.
+
+    OUT must not hold another run (see --overwrite) and takes one run at a time (a lock file).
+    """
     from gsslam.config import load_config
     from gsslam.run.sequence import run_sequence
 
@@ -123,24 +143,32 @@ def run_cmd(
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics
-    bar = None
+    bars: list = []  # created at the first frame, so that errors before the run stay one line
     callback = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(unit="frame", file=sys.stderr, dynamic_ncols=True)
-
         def callback(done: int, total: int, fps: float) -> None:
+            if not bars:
+                bars.append(tqdm(unit="frame", file=sys.stderr, dynamic_ncols=True))
+            bar = bars[0]
             bar.total = total
             bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
             bar.update(done - bar.n)
 
     try:
         result = run_sequence(
-            path, dataset, cfg, out, max_frames=max_frames, progress=callback or False, **ds_kwargs
+            path,
+            dataset,
+            cfg,
+            out,
+            max_frames=max_frames,
+            progress=callback or False,
+            overwrite=overwrite,
+            **ds_kwargs,
         )
     finally:
-        if bar is not None:
+        for bar in bars:
             bar.close()
     _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
     if viz == "rerun":
@@ -212,7 +240,7 @@ def demo_cmd(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """RGB-D SLAM on the bundled TUM fr3/teddy frames, then ATE/RPE against its ground truth."""
-    from gsslam.eval.report import evaluate_files
+    from gsslam.run.evaluate import evaluate_files
 
     if data is None:
         here, checkout = Path.cwd(), Path(__file__).resolve().parents[1]
@@ -221,7 +249,8 @@ def demo_cmd(
             raise typer.BadParameter(
                 f"{DEMO_SEQUENCE} not found; run from a clone of gsslam or pass --data", param_hint="--data"
             )
-    run_cmd(data, "tum", "rgbd", out, None, set_, max_frames, None, progress)
+    # the demo's own folder: a previous demo in it is replaced (only gsslam's files)
+    run_cmd(data, "tum", "rgbd", out, None, set_, max_frames, None, progress, overwrite=True)
     report = evaluate_files(
         data / "groundtruth.txt", out / "trajectory.tum", align="se3", plot=out / "ate.png"
     )
@@ -233,13 +262,25 @@ def demo_cmd(
 def render_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run` (holds map.ply).")],
     out: Annotated[Path, typer.Option(help="Folder for the rendered PNGs.")] = Path("renders"),
-    every: Annotated[int, typer.Option(help="Render every N-th pose of trajectory.tum.")] = 10,
+    every: Annotated[int, typer.Option(min=1, help="Render every N-th pose of trajectory.tum.")] = 10,
 ) -> None:
     """Render frames from a saved Gaussian map along the saved trajectory."""
     from gsslam.run.render import render_run
 
     n = render_run(run_dir, out, every=every)
     typer.echo(f"wrote {n} renders to {out}")
+
+
+def _int_list(text: str, option: str) -> list[int]:
+    """``"50,200"`` -> ``[50, 200]``; anything else is a usage error naming the option."""
+    try:
+        values = [int(s) for s in text.split(",")]
+    except ValueError:
+        raise typer.BadParameter(f"expected comma-separated integers like 50,200, got {text!r}",
+                                 param_hint=option) from None  # fmt: skip
+    if any(v <= 0 for v in values):
+        raise typer.BadParameter(f"every value must be positive, got {text!r}", param_hint=option)
+    return values
 
 
 def _run_batch(
@@ -339,7 +380,7 @@ def bench_graph(
     imu: Annotated[bool, typer.Option(help="Add CombinedImuFactors (synthesized 200 Hz IMU).")] = False,
 ) -> None:
     """iSAM2 update time per keyframe and batch LM time on a synthetic chain."""
-    _bench("graph", sizes=[int(s) for s in sizes.split(",")], points=points, imu=imu)
+    _bench("graph", sizes=_int_list(sizes, "--sizes"), points=points, imu=imu)
 
 
 @bench_app.command("raster")
@@ -376,7 +417,7 @@ def bench_mapper(
     """Mapper alone on ground-truth poses: PSNR, map size, time per keyframe for each resolution."""
     _bench(
         "mapper", path=path, max_frames=max_frames, kf_every=kf_every, iterations=iterations,
-        sides=tuple(int(s) for s in sides.split(",")),
+        sides=tuple(_int_list(sides, "--sides")),
     )  # fmt: skip
 
 
@@ -385,18 +426,93 @@ def bench_loop(
     sizes: Annotated[str, typer.Option(help="Comma-separated submap counts.")] = "10,100,500",
 ) -> None:
     """Loop-detection time per submap as the map grows."""
-    _bench("loop", sizes=[int(s) for s in sizes.split(",")])
+    _bench("loop", sizes=_int_list(sizes, "--sizes"))
+
+
+EXIT_OK = 0
+EXIT_FAILURE = 1  # runtime failure (unexpected error)
+EXIT_USAGE = 2  # usage or input error the user can fix
+EXIT_SIGINT = 128 + signal.SIGINT  # 130
+EXIT_SIGTERM = 128 + signal.SIGTERM  # 143
+# OSError numbers that mean "this path cannot be used as given": the user fixes the path
+_PATH_ERRNOS = (
+    errno.ENOENT,
+    errno.ENOTDIR,
+    errno.EISDIR,
+    errno.EACCES,
+    errno.EPERM,
+    errno.EEXIST,
+    errno.EROFS,
+)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+def _fail(message: str, code: int) -> int:
+    typer.echo(f"error: {_one_line(message)}", err=True)
+    return code
+
+
+def run_cli(argv: list[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default ``sys.argv[1:]``) and return the exit status.
+
+    SIGTERM is turned into the same interruption as Ctrl-C, so a killed run writes its outputs.
+    """
+    try:  # typer >= 0.16 carries its own copy of click; older versions use click itself
+        from typer._click import exceptions as click
+    except ImportError:
+        from click import exceptions as click
+
+    received: list[int] = []
+
+    def on_term(signum: int, _frame) -> None:
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        rv = app(args=argv, prog_name="gsslam", standalone_mode=False)
+        if isinstance(rv, int) and rv == 130:  # typer turns KeyboardInterrupt into exit 130
+            typer.echo("interrupted", err=True)
+            return EXIT_SIGTERM if received else EXIT_SIGINT
+        return rv if isinstance(rv, int) else EXIT_OK
+    except GsslamError as e:
+        _log.debug("gsslam error", exc_info=True)
+        if received:  # the interruption surfaced as another error (e.g. inside an import)
+            typer.echo("interrupted", err=True)
+            return EXIT_SIGTERM
+        return _fail(str(e), EXIT_USAGE)
+    except click.UsageError as e:
+        if not e.format_message():  # no arguments at all: the help was shown
+            return EXIT_USAGE
+        where = f" (see '{e.ctx.command_path} --help')" if e.ctx is not None else ""
+        return _fail(e.format_message() + where, EXIT_USAGE)
+    except click.ClickException as e:
+        return _fail(e.format_message(), e.exit_code)
+    except (KeyboardInterrupt, typer.Abort):
+        typer.echo("interrupted", err=True)
+        return EXIT_SIGTERM if received else EXIT_SIGINT
+    except OSError as e:
+        _log.debug("OS error", exc_info=True)
+        if e.errno in _PATH_ERRNOS and e.filename is not None:
+            return _fail(f"cannot use {e.filename}: {e.strerror}; check the path", EXIT_USAGE)
+        return _fail(f"{e} (rerun with -v for the traceback)", EXIT_FAILURE)
+    except Exception as e:  # a bug or the machine: one line, the traceback with -v
+        _log.debug("unexpected error", exc_info=True)
+        if received:  # SIGTERM raised inside an extension's import shows up as ImportError
+            typer.echo("interrupted", err=True)
+            return EXIT_SIGTERM
+        return _fail(
+            f"unexpected {type(e).__name__}: {e} (a bug? rerun with -v for the traceback)", EXIT_FAILURE
+        )
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def main() -> None:
-    try:
-        app()
-    except GsslamError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise SystemExit(2) from None
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        raise SystemExit(130) from None
+    raise SystemExit(run_cli())
 
 
 if __name__ == "__main__":

@@ -4,11 +4,15 @@ Each stage owns one section dataclass. ``load_config(path, overrides)`` starts f
 defaults below, applies a YAML file (only keys that exist are accepted) and then the overrides,
 e.g. ``["mapper.iterations=50", "loop.enabled=false"]``. The resolved config is written next to
 every result with :func:`save_config`.
+
+Every loaded value is range-checked (:func:`validate_config`, table ``RANGES``): a value out of its
+range raises :class:`ConfigError` naming the key, the value, where it was set and the valid range.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -182,6 +186,7 @@ class PipelineConfig:
     max_lost_frames: int = 2  # consecutive tracking failures that start a new submap chain
     cross_flow_back: int = 3  # each new keyframe gets flow to keyframes this far back in the previous submap
     flow_points: int = 1000  # correspondences per cross-submap keyframe pair
+    max_time_gap_s: float = 0.5  # a longer gap between frames is an event; mono starts a new chain there
 
 
 @dataclass(frozen=True)
@@ -254,27 +259,246 @@ def parse_override(text: str) -> dict:
     return out
 
 
+def _dotted_keys(updates: dict, prefix: str = "") -> list[str]:
+    out = []
+    for k, v in updates.items():
+        out += _dotted_keys(v, f"{prefix}{k}.") if isinstance(v, dict) else [f"{prefix}{k}"]
+    return out
+
+
+def read_config_file(path: str | Path) -> dict:
+    """The mapping of sections in a YAML config file; unreadable, binary or malformed files raise."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file not found: {p}")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {p} is not a text file (binary data?); write YAML sections") from None
+    except OSError as e:
+        raise ConfigError(f"cannot read config file {p}: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text) or {}
+    except yaml.YAMLError as e:
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ConfigError(f"config file {p} is not valid YAML ({first}); fix or remove it") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {p} must hold a mapping of sections")
+    return data
+
+
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None, **top: Any) -> Config:
-    """Defaults, then the YAML file at ``path``, then dotted ``overrides``, then keyword top-level keys."""
+    """Defaults, then the YAML file at ``path``, then dotted ``overrides``, then keyword top-level keys.
+
+    The result is range-checked (:func:`validate_config`); the error names where a bad value was set.
+    """
     cfg = Config()
+    sources: dict[str, str] = {}
     if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise ConfigError(f"config file not found: {p}")
+        data = read_config_file(path)
         try:
-            data = yaml.safe_load(p.read_text()) or {}
-        except yaml.YAMLError as e:
-            raise ConfigError(f"config file {p} is not valid YAML: {e}") from None
-        if not isinstance(data, dict):
-            raise ConfigError(f"config file {p} must hold a mapping of sections")
-        cfg = _apply(cfg, data)
+            cfg = _apply(cfg, data)
+        except ConfigError as e:
+            raise ConfigError(f"config file {path}: {e}") from None
+        sources.update(dict.fromkeys(_dotted_keys(data), f"in config file {path}"))
     for text in overrides or []:
-        cfg = _apply(cfg, parse_override(text))
+        update = parse_override(text)
+        cfg = _apply(cfg, update)
+        sources.update(dict.fromkeys(_dotted_keys(update), f"by override '{text}'"))
     if top:
-        cfg = _apply(cfg, {k: v for k, v in top.items() if v is not None})
-    if cfg.mode not in ("mono", "rgbd"):
-        raise ConfigError(f"mode must be 'mono' or 'rgbd', got {cfg.mode!r}")
+        given = {k: v for k, v in top.items() if v is not None}
+        cfg = _apply(cfg, given)
+        sources.update(dict.fromkeys(given, "by argument"))
+    validate_config(cfg, sources)
     return cfg
+
+
+# ------------------------------------------------------------------------------------------- ranges
+
+
+@dataclass(frozen=True)
+class Range:
+    """Valid values of one numeric key: ``lo <= v <= hi`` (``<`` where open); None: unbounded."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def ok(self, v: float) -> bool:
+        if not math.isfinite(v):
+            return False
+        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
+            return False
+        return not (self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi))
+
+    def describe(self, integer: bool = False) -> str:
+        def num(x: float) -> str:
+            return str(int(x)) if integer else f"{x:g}"
+
+        parts = []
+        if self.lo is not None:
+            parts.append(f"{'>' if self.lo_open else '>='} {num(self.lo)}")
+        if self.hi is not None:
+            parts.append(f"{'<' if self.hi_open else '<='} {num(self.hi)}")
+        kind = "an integer" if integer else "a finite number"
+        return f"{kind} " + " and ".join(parts) if parts else kind
+
+
+POS = Range(0.0, lo_open=True)  # > 0
+NONNEG = Range(0.0)  # >= 0
+UNIT = Range(0.0, 1.0)  # [0, 1]
+PROB = Range(0.0, 1.0, lo_open=True)  # (0, 1]
+
+
+def _ge(n: int) -> Range:
+    return Range(float(n))
+
+
+# Every numeric key has a range; string keys with a fixed vocabulary list their choices. A new config
+# key needs an entry here (tests/test_config.py checks that none is missing).
+RANGES: dict[str, Range | tuple[str, ...]] = {
+    "mode": ("mono", "rgbd"),
+    "seed": Range(0, 2**32 - 1),
+    "flow.dis_preset": ("ultrafast", "fast", "medium"),
+    "flow.dis_finest_scale": _ge(-1),
+    "flow.max_side": _ge(16),
+    "flow.fb_threshold_px": POS,
+    "keyframes.min_flow_px": NONNEG,
+    "keyframes.max_gap": _ge(1),
+    "encoder.submap_size": _ge(1),
+    "encoder.max_points_per_frame": _ge(8),
+    "encoder.min_parallax_deg": Range(0.0, 90.0, hi_open=True),
+    "encoder.ransac_threshold_px": POS,
+    "encoder.min_depth": NONNEG,
+    "encoder.max_depth": POS,
+    "encoder.pointmap_max_side": _ge(16),
+    "encoder.min_inliers": _ge(5),
+    "encoder.odometry_depth_diff_max": POS,
+    "encoder.min_texture_gradient": NONNEG,
+    "encoder.mono_dis_preset": ("", "ultrafast", "fast", "medium"),
+    "graph.flow_sigma_px": POS,
+    "graph.flow_inlier_prior": PROB,
+    "graph.flow_outlier_range_px": POS,
+    "graph.scale_sigma": POS,
+    "graph.adjacency_sigma_m": POS,
+    "graph.loop_sigma_m": POS,
+    "graph.depth_prior_sigma": POS,
+    "graph.prior_rot_sigma": POS,
+    "graph.prior_trans_sigma": POS,
+    "graph.prior_scale_sigma": POS,
+    "graph.relinearize_threshold": NONNEG,
+    "graph.relinearize_skip": _ge(1),
+    "graph.align_rot_sigma": POS,
+    "graph.align_trans_sigma": POS,
+    "graph.adjacency_max_points": _ge(1),
+    "graph.flow_max_points": _ge(1),
+    "graph.wildfire_threshold": NONNEG,
+    "graph.batch_max_iterations": _ge(0),
+    "mapper.device": ("auto", "cpu", "cuda"),
+    "mapper.rasterizer": ("auto", "c", "torch", "gsplat", "fast"),  # gsslam.mapping.rasterize.BACKENDS
+    "mapper.max_side": _ge(16),
+    "mapper.iterations": _ge(0),
+    "mapper.window": _ge(1),
+    "mapper.lambda_ssim": UNIT,
+    "mapper.lambda_depth": NONNEG,
+    "mapper.lambda_depth_normal": NONNEG,
+    "mapper.lambda_scale": NONNEG,
+    "mapper.lambda_flow": NONNEG,
+    "mapper.lambda_pose_depth": NONNEG,
+    "mapper.unmapped_alpha": UNIT,
+    "mapper.max_gaussians": _ge(1),
+    "mapper.depth_feedback_points": _ge(0),
+    "mapper.lr_means": NONNEG,
+    "mapper.lr_colors": NONNEG,
+    "mapper.lr_opacity": NONNEG,
+    "mapper.lr_scales": NONNEG,
+    "mapper.lr_quats": NONNEG,
+    "mapper.lr_pose": NONNEG,
+    "mapper.pose_iterations": _ge(0),
+    "mapper.lr_pose_init": NONNEG,
+    "mapper.init_stride": _ge(1),
+    "mapper.init_opacity": Range(0.0, 1.0, lo_open=True, hi_open=True),
+    "mapper.min_confidence": UNIT,
+    "mapper.flow_sigma_px": POS,
+    "mapper.flow_inlier_prior": PROB,
+    "mapper.flow_outlier_range_px": POS,
+    "mapper.densify_error": NONNEG,
+    "mapper.prune_error": NONNEG,
+    "mapper.min_opacity": Range(0.0, 1.0, hi_open=True),
+    "mapper.revisit_fraction": UNIT,
+    "mapper.final_iterations_per_keyframe": _ge(0),
+    "mapper.final_lr_scale": POS,
+    "mapper.final_densify_rounds": _ge(0),
+    "mapper.final_lambda_flow": NONNEG,
+    "mapper.final_pose_iterations": _ge(0),
+    "mapper.final_lr_pose": NONNEG,
+    "mapper.final_pose_prior": NONNEG,
+    "mapper.pose_window": _ge(0),
+    "mapper.lambda_pose_prior": NONNEG,
+    "mapper.pose_prior_rel": POS,
+    "mapper.pose_min_gain": UNIT,
+    "mapper.pose_init_prior": NONNEG,
+    "mapper.num_threads": _ge(0),
+    "loop.skip_recent": _ge(0),
+    "loop.min_overlap": UNIT,
+    "loop.min_score": UNIT,
+    "loop.min_inliers": _ge(3),
+    "loop.inlier_threshold_m": POS,
+    "loop.max_candidates": _ge(1),
+    "loop.inlier_threshold_rel": POS,
+    "loop.min_inlier_ratio": UNIT,
+    "loop.ransac_iterations": _ge(1),
+    "loop.depth_tolerance_rel": POS,
+    "loop.points_per_submap": _ge(1),
+    "loop.orb_features": _ge(1),
+    "loop.max_reprojection_checks": _ge(1),
+    "loop.verify_view_pairs": _ge(1),
+    "loop.max_drift_ratio": POS,
+    "loop.max_rot_discrepancy_deg": Range(0.0, 180.0, lo_open=True),
+    "loop.max_residual_factor": POS,
+    "pipeline.track_points": _ge(8),
+    "pipeline.min_photo_consistency": UNIT,
+    "pipeline.min_pnp_inliers": _ge(4),
+    "pipeline.min_pnp_inlier_ratio": UNIT,
+    "pipeline.pnp_threshold_px": POS,
+    "pipeline.blank_std": NONNEG,
+    "pipeline.max_lost_frames": _ge(1),
+    "pipeline.cross_flow_back": _ge(0),
+    "pipeline.flow_points": _ge(1),
+    "pipeline.max_time_gap_s": POS,
+}
+
+
+def _leaves(obj: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    out = []
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        out += _leaves(v, f"{prefix}{f.name}.") if dataclasses.is_dataclass(v) else [(f"{prefix}{f.name}", v)]
+    return out
+
+
+def validate_config(cfg: Config, sources: dict[str, str] | None = None) -> None:
+    """Raise :class:`ConfigError` on the first value outside its range (``RANGES``); ``sources`` maps a
+    dotted key to where it was set (for the message)."""
+    sources = sources or {}
+
+    def fail(key: str, value: Any, valid: str) -> None:
+        where = sources.get(key)
+        where = f"set {where}" if where else "(the default)"
+        raise ConfigError(f"config {key}={value!r} {where} is out of range: must be {valid}")
+
+    for key, value in _leaves(cfg):
+        rule = RANGES.get(key)
+        if isinstance(rule, tuple):
+            if value not in rule:
+                fail(key, value, "one of " + ", ".join(repr(c) for c in rule))
+        elif isinstance(value, float) and not math.isfinite(value):
+            fail(key, value, rule.describe() if rule else "a finite number")
+        elif rule is not None and not isinstance(value, bool) and not rule.ok(float(value)):
+            fail(key, value, rule.describe(integer=isinstance(value, int)))
+    if not cfg.encoder.min_depth < cfg.encoder.max_depth:
+        fail("encoder.max_depth", cfg.encoder.max_depth, f"> encoder.min_depth ({cfg.encoder.min_depth})")
 
 
 def config_to_dict(cfg: Any) -> dict:
@@ -282,4 +506,6 @@ def config_to_dict(cfg: Any) -> dict:
 
 
 def save_config(cfg: Config, path: str | Path) -> None:
-    Path(path).write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+    from gsslam.io.atomic import atomic_write_text
+
+    atomic_write_text(path, yaml.safe_dump(config_to_dict(cfg), sort_keys=False))

@@ -38,8 +38,10 @@ class CameraIntrinsics:
     distortion: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        if not (self.fx > 0 and self.fy > 0):
+        if not (self.fx > 0 and self.fy > 0) or not np.isfinite([self.fx, self.fy]).all():
             raise TypesError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if not np.isfinite([self.cx, self.cy]).all():
+            raise TypesError(f"principal point must be finite, got cx={self.cx}, cy={self.cy}")
         if self.width <= 0 or self.height <= 0:
             raise TypesError(f"image size must be positive, got {self.width}x{self.height}")
 
@@ -86,23 +88,134 @@ class Frame:
     T_world_cam_gt: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if self.image.ndim != 3 or self.image.shape[2] != 3:
-            raise TypesError(f"frame {self.index}: image must be [H, W, 3], got {self.image.shape}")
+        if not isinstance(self.image, np.ndarray) or self.image.ndim != 3 or self.image.shape[2] != 3:
+            shape = getattr(self.image, "shape", type(self.image).__name__)
+            raise TypesError(f"frame {self.index}: image must be a [H, W, 3] numpy array, got {shape}")
         h, w = self.image.shape[:2]
         if (w, h) != (self.intrinsics.width, self.intrinsics.height):
             raise TypesError(
                 f"frame {self.index}: image is {w}x{h} but intrinsics say "
                 f"{self.intrinsics.width}x{self.intrinsics.height}"
             )
-        if self.depth is not None and self.depth.shape != (h, w):
+        _check_color(self.image, self.index)
+        if self.depth is not None:
+            if not isinstance(self.depth, np.ndarray) or self.depth.shape != (h, w):
+                shape = getattr(self.depth, "shape", None)
+                got = f"{shape[1]}x{shape[0]}" if shape is not None and len(shape) == 2 else str(shape)
+                raise TypesError(
+                    f"frame {self.index}: depth is {got} but the image is {w}x{h}; "
+                    "depth must be a [H, W] array registered to the image"
+                )
+            _check_depth(self.depth, self.index)
+        if self.T_world_cam_gt is not None:
+            T = np.asarray(self.T_world_cam_gt)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise TypesError(
+                    f"frame {self.index}: T_world_cam_gt must be a finite [4, 4] matrix, got "
+                    f"{T.shape if T.shape != (4, 4) else 'non-finite values'}; "
+                    "pass None when there is no pose"
+                )
+
+    @classmethod
+    def from_arrays(
+        cls,
+        index: int,
+        timestamp: float,
+        image: np.ndarray,
+        intrinsics: CameraIntrinsics,
+        depth: np.ndarray | None = None,
+        T_world_cam_gt: np.ndarray | None = None,
+        *,
+        depth_scale: float | None = None,
+        depth_invalid: float | None = 0,
+    ) -> Frame:
+        """A frame from arrays in sensor units, converted explicitly to the frame contract.
+
+        ``image``: uint8 (divided by 255), uint16 (divided by 65535) or float already in [0, 1].
+        ``depth``: raw sensor values; ``depth_scale`` is the number of raw units per metre (TUM 5000,
+        Kinect/7-Scenes millimetres 1000; 1 when the depth is already metres). Raw values equal to
+        ``depth_invalid`` (0 by default; None: none) become NaN. Integer depth needs ``depth_scale``.
+        """
+        img = np.asarray(image)
+        if img.dtype == np.uint8:
+            img = img.astype(np.float32) / np.float32(255.0)
+        elif img.dtype == np.uint16:
+            img = img.astype(np.float32) / np.float32(65535.0)
+        elif np.issubdtype(img.dtype, np.floating):
+            img = img.astype(np.float32, copy=False)
+        else:
             raise TypesError(
-                f"frame {self.index}: depth is {self.depth.shape[1]}x{self.depth.shape[0]} "
-                f"but the image is {w}x{h}; depth must be registered to the image"
+                f"frame {index}: image dtype {img.dtype} is not supported; "
+                "give uint8, uint16 or float in [0, 1]"
             )
+        dep = None
+        if depth is not None:
+            raw = np.asarray(depth)
+            if depth_scale is None:
+                if not np.issubdtype(raw.dtype, np.floating):
+                    raise TypesError(
+                        f"frame {index}: depth is {raw.dtype} (raw sensor units); pass depth_scale= "
+                        "(raw units per metre: TUM 5000, millimetres 1000)"
+                    )
+                depth_scale = 1.0
+            if not depth_scale > 0:
+                raise TypesError(f"frame {index}: depth_scale must be positive, got {depth_scale}")
+            dep = raw.astype(np.float32) / np.float32(depth_scale)
+            if depth_invalid is not None:
+                dep[raw == depth_invalid] = np.nan
+        return cls(index, timestamp, np.ascontiguousarray(img), intrinsics, dep, T_world_cam_gt)
 
     @property
     def gray(self) -> np.ndarray:  # [H, W] float32 in [0, 1]
         return (self.image @ np.array([0.299, 0.587, 0.114], dtype=np.float32)).astype(np.float32)
+
+
+# A depth map whose median valid value is above this many metres can only be in millimetres (or raw
+# sensor units): no RGB-D sensor measures a scene that far, and outdoor stereo medians stay far below.
+MAX_MEDIAN_DEPTH_M = 100.0
+COLOR_TOLERANCE = 1e-3  # colour values may exceed [0, 1] by this much (resampling round-off)
+
+
+def _check_color(image: np.ndarray, index: int) -> None:
+    """Colour must be float in [0, 1]: uint8 or 0..255 floats are refused with the fix."""
+    if not np.issubdtype(image.dtype, np.floating):
+        raise TypesError(
+            f"frame {index}: image is {image.dtype}; colour must be float in [0, 1]: build the frame with "
+            "Frame.from_arrays(...) (converts uint8/uint16) or divide by 255"
+        )
+    lo, hi = float(image.min()), float(image.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise TypesError(f"frame {index}: image holds NaN or inf; colour must be finite float in [0, 1]")
+    if lo < -COLOR_TOLERANCE or hi > 1.0 + COLOR_TOLERANCE:
+        hint = "divide by 255 (or use Frame.from_arrays with the uint8 image)" if hi > 1.5 else "clip it"
+        raise TypesError(
+            f"frame {index}: image values span {lo:.4g}..{hi:.4g}; colour must be float in [0, 1]: {hint}"
+        )
+
+
+def _check_depth(depth: np.ndarray, index: int) -> None:
+    """Depth must be float metres, NaN where invalid; integer or millimetre-sized values are refused."""
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise TypesError(
+            f"frame {index}: depth is {depth.dtype} (raw sensor units?); depth must be float metres with NaN "
+            "where invalid: use Frame.from_arrays(..., depth_scale=5000 for TUM, 1000 for millimetres)"
+        )
+    known = ~np.isnan(depth)
+    if not known.any():
+        return
+    if np.isinf(depth).any() or float(depth.min(where=known, initial=np.inf)) < 0:
+        raise TypesError(
+            f"frame {index}: depth holds inf or negative values; depth is metres >= 0 with NaN where invalid"
+        )
+    sample = depth[::4, ::4]
+    valid = sample[~np.isnan(sample)]
+    median = float(np.median(valid)) if valid.size else float(np.median(depth[known]))
+    if median > MAX_MEDIAN_DEPTH_M:
+        raise TypesError(
+            f"frame {index}: median depth is {median:.4g}, which can only be millimetres or raw units; "
+            "depth must be metres: divide by the sensor's scale (1000 for millimetres, 5000 for TUM) or use "
+            "Frame.from_arrays(..., depth_scale=...)"
+        )
 
 
 @dataclass

@@ -59,8 +59,53 @@ def test_bad_files(tmp_path: Path):
     bad.write_text("mapper: [1, 2\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(bad)
-    with pytest.raises(ConfigError, match="mode must be"):
+    with pytest.raises(
+        ConfigError, match="mode=.stereo. set by argument is out of range: must be one of .mono., .rgbd."
+    ):
         load_config(mode="stereo")
+
+
+def test_every_key_has_a_range():
+    """A new config key needs an entry in gsslam.config.RANGES (numeric range or string choices)."""
+    from gsslam.config import RANGES, _leaves
+
+    missing = [k for k, v in _leaves(Config()) if not isinstance(v, bool) and k not in RANGES]
+    # free-form strings: the flow method is extensible (frontend.flow.register_flow_method)
+    missing = [k for k in missing if k != "flow.method"]
+    assert not missing, f"add ranges for {missing} to gsslam.config.RANGES"
+    stale = [k for k in RANGES if k not in dict(_leaves(Config()))]
+    assert not stale, f"RANGES names keys that no longer exist: {stale}"
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("encoder.submap_size=-3", r"encoder\.submap_size=-3 set by override .* must be an integer >= 1"),
+        ("graph.flow_sigma_px=nan", r"graph\.flow_sigma_px=nan .* must be a finite number > 0"),
+        ("graph.flow_sigma_px=.inf", r"graph\.flow_sigma_px=inf .* must be a finite number > 0"),
+        ("pipeline.track_points=0", r"pipeline\.track_points=0 .* must be an integer >= 8"),
+        ("mapper.lambda_ssim=1.5", r"mapper\.lambda_ssim=1\.5 .* <= 1"),
+        ("mapper.device=gpu", r"mapper\.device='gpu' .* one of 'auto', 'cpu', 'cuda'"),
+        ("encoder.min_depth=20", r"encoder\.max_depth=10\.0 \(the default\) .* > encoder\.min_depth"),
+    ],
+)
+def test_values_are_range_checked(override, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(overrides=[override])
+
+
+def test_range_errors_name_the_file_and_cross_checks_see_the_final_values(tmp_path: Path):
+    p = tmp_path / "c.yaml"
+    p.write_text("loop:\n  min_score: 2.0\n")
+    with pytest.raises(ConfigError, match=rf"loop\.min_score=2\.0 set in config file {p}"):
+        load_config(p)
+    # order of overrides does not matter: only the final values are checked
+    cfg = load_config(overrides=["encoder.min_depth=20", "encoder.max_depth=50"])
+    assert (cfg.encoder.min_depth, cfg.encoder.max_depth) == (20.0, 50.0)
+    garbage = tmp_path / "garbage.yaml"
+    garbage.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(ConfigError, match="not a text file"):
+        load_config(garbage)
 
 
 def test_config_is_frozen():

@@ -5,9 +5,9 @@ from __future__ import annotations
 import sys
 
 import pytest
-from helpers.run_folder import make_run
 
 from gsslam.errors import GsslamError
+from helpers.run_folder import make_run
 
 
 @pytest.mark.parametrize(

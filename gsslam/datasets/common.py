@@ -19,7 +19,7 @@ import yaml
 
 from gsslam.datasets.base import DatasetError
 from gsslam.io.trajectory import TrajectoryIOError, read_tum
-from gsslam.types import CameraIntrinsics, Trajectory
+from gsslam.types import CameraIntrinsics, Trajectory, TypesError
 
 
 class DatasetFormatError(DatasetError):
@@ -48,9 +48,15 @@ def parse_floats(fields: list[str], count: int, path: Path, line: int) -> np.nda
             f"{path}:{line}: expected {count} numbers, got {len(fields)}: {' '.join(fields)}"
         )
     try:
-        return np.array([float(x) for x in fields[:count]], dtype=np.float64)
+        values = np.array([float(x) for x in fields[:count]], dtype=np.float64)
     except ValueError:
         raise DatasetFormatError(f"{path}:{line}: not a number in: {' '.join(fields)}") from None
+    if not np.all(np.isfinite(values)):
+        raise DatasetFormatError(
+            f"{path}:{line}: non-finite value (nan/inf) in: {' '.join(fields[:count])}; "
+            "fix or delete this row"
+        )
+    return values
 
 
 def check_increasing(timestamps: np.ndarray, source: Path | str, lines: list[int] | None = None) -> None:
@@ -94,7 +100,7 @@ def read_tum_trajectory(path: Path, what: str = "trajectory") -> Trajectory:
     try:
         traj = read_tum(path)
     except TrajectoryIOError as e:
-        raise DatasetFormatError(f"{what}: {e}") from None
+        raise DatasetFormatError(f"{what}: {e}; fix the file or delete that row") from None
     check_increasing(traj.timestamps, path)
     return Trajectory(traj.timestamps, traj.poses, meta={"source": str(path)})
 
@@ -144,6 +150,28 @@ def normalize_index(index: int, n: int) -> int:
     return i
 
 
+def read_yaml_mapping(path: Path, what: str, keys: str) -> dict:
+    """A YAML file that must hold a mapping; binary or malformed files raise with the file named."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise DatasetFormatError(
+            f"{what} {path} is not a text file (binary data?); write a YAML mapping with {keys}"
+        ) from None
+    except OSError as e:
+        raise DatasetFormatError(f"cannot read {what} {path}: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise DatasetFormatError(
+            f"{what} {path} is not valid YAML ({first}); write a mapping with {keys}"
+        ) from None
+    if not isinstance(data, dict):
+        raise DatasetFormatError(f"{what} {path} must be a YAML mapping with keys {keys}")
+    return data
+
+
 # ROS names of OpenCV's k1 k2 p1 p2 [k3 ...] distortion
 OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
 
@@ -179,12 +207,7 @@ def load_intrinsics_yaml(path: Path, width: int | None = None, height: int | Non
     path = Path(path)
     if not path.is_file():
         raise DatasetFormatError(f"intrinsics file is missing: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise DatasetFormatError(f"intrinsics file {path} is not valid YAML: {e}") from None
-    if not isinstance(data, dict):
-        raise DatasetFormatError(f"intrinsics file {path} must be a mapping with keys fx, fy, cx, cy")
+    data = read_yaml_mapping(path, "intrinsics file", "fx, fy, cx, cy")
     if "camera_matrix" in data:
         data = ros_camera_info_yaml(data, path)
     missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
@@ -203,3 +226,5 @@ def load_intrinsics_yaml(path: Path, width: int | None = None, height: int | Non
         )
     except (TypeError, ValueError) as e:
         raise DatasetFormatError(f"intrinsics file {path}: bad value ({e}); use numbers") from None
+    except TypesError as e:
+        raise DatasetFormatError(f"intrinsics file {path}: {e}") from None

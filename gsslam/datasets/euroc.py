@@ -36,7 +36,7 @@ from gsslam.datasets.common import (
     read_rows,
     read_tum_trajectory,
 )
-from gsslam.datasets.image_io import Undistorter, read_color
+from gsslam.datasets.image_io import Undistorter, check_image_files, read_color
 from gsslam.geometry import make_T, quat_to_rot
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
@@ -74,7 +74,13 @@ def read_sensor_yaml(path: Path) -> dict:
     """An ASL ``sensor.yaml`` (OpenCV-flavoured YAML: ``%YAML:1.0`` header, optional matrix tags)."""
     if not path.is_file():
         raise EurocError(f"EuRoC sensor calibration is missing: {path}")
-    text = "\n".join(l for l in path.read_text().splitlines() if not l.startswith("%"))
+    try:
+        raw = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise EurocError(
+            f"{path} is not a text file (binary data?); restore the sequence's sensor.yaml"
+        ) from None
+    text = "\n".join(l for l in raw.splitlines() if not l.startswith("%"))
     text = text.replace("!!opencv-matrix", "")
     try:
         data = yaml.safe_load(text)
@@ -183,6 +189,7 @@ class EurocDataset:
         if len(self._t_ns) == 0:
             raise EurocError(f"{cam_dir / 'data.csv'} lists no images; the sequence is empty")
         self._files = [cam_dir / "data" / f[1] for f in rows]
+        check_image_files(self._files, (w, h), "image")  # headers only, before any run
         self._times = ns_to_s(self._t_ns)
 
         gt_file = Path(gt_path) if gt_path is not None else _find_gt(root)

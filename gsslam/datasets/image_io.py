@@ -3,7 +3,10 @@
 - :func:`read_color` gives ``[H, W, 3]`` float32 RGB in [0, 1]; grayscale files are replicated to
   three channels; 16-bit files are scaled by 1/65535.
 - :func:`read_depth` gives ``[H, W]`` float32 metres (raw value / ``scale``) with invalid raw values
-  (0 by default) set to NaN.
+  (0 by default) set to NaN. 8-bit depth files are refused: 256 levels cannot hold a depth range
+  (a depth map saved as an 8-bit PNG has lost its units).
+- :func:`check_image_files` reads only the headers of a sequence's files and refuses, before a run
+  starts, a file whose size differs from the camera's (or an 8-bit depth file), naming the file.
 - :class:`Undistorter` removes lens distortion with OpenCV maps computed once per camera. The
   undistorted image keeps the same pinhole matrix K (``newCameraMatrix = K``), so the frames a loader
   hands out have the dataset's K with ``distortion == ()``. Colour is resampled bilinearly, depth
@@ -44,6 +47,56 @@ def image_size(path: Path) -> tuple[int, int]:
     return int(img.shape[1]), int(img.shape[0])
 
 
+# Pillow modes of single-channel images with more than 8 bits per pixel (16-bit PNG, 32-bit TIFF)
+_DEEP_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I", "F")
+
+
+def read_header(path: Path) -> tuple[int, int, str]:
+    """``(width, height, mode)`` of an image file from its header only (Pillow mode, e.g. "RGB", "I;16")."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ImageReadError(f"image file is missing: {path}")
+    try:
+        with Image.open(path) as im:
+            return int(im.size[0]), int(im.size[1]), str(im.mode)
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError):
+        raise ImageReadError(
+            f"cannot decode image {path} (corrupt or not an image); replace the file"
+        ) from None
+
+
+def check_image_files(
+    paths: list[Path], size: tuple[int, int] | None, what: str, depth: bool = False
+) -> tuple[int, int]:
+    """Check every file's header before a run: same ``(width, height)`` as ``size`` (default: the first
+    file's) and, for ``depth``, a single channel of more than 8 bits. Returns the size."""
+    ref = None if size is None else (int(size[0]), int(size[1]))
+    first = None
+    for path in paths:
+        w, h, mode = read_header(path)
+        if ref is None:
+            ref, first = (w, h), path
+        if (w, h) != ref:
+            source = f"{Path(first).name} is" if first is not None else "the camera calibration is for"
+            raise ImageReadError(
+                f"{path} is {w}x{h} but {source} {ref[0]}x{ref[1]}; every {what} of a sequence must have "
+                "the camera's size: resize or remove the odd files (or fix the intrinsics)"
+            )
+        if depth and mode not in _DEEP_MODES:
+            kind = "8-bit" if mode in ("L", "P", "1", "LA") else f"a colour image ({mode})"
+            raise ImageReadError(_depth_bits_message(path, kind))
+    return ref if ref is not None else (0, 0)
+
+
+def _depth_bits_message(path: Path, kind: str) -> str:
+    return (
+        f"depth file {path} is {kind}; depth must be a single-channel 16-bit PNG "
+        "(raw value / scale = metres): an 8-bit depth map has lost its units; re-export the depth as 16-bit"
+    )
+
+
 def to_rgb_float(img: np.ndarray, source: str = "image") -> np.ndarray:  # -> [H, W, 3] float32
     """Convert a decoded OpenCV array (gray, BGR or BGRA; uint8/uint16/float) to RGB float in [0, 1]."""
     if img.dtype == np.uint8:
@@ -79,6 +132,8 @@ def read_depth(path: Path, scale: float, invalid: tuple[int, ...] = (0,)) -> np.
         raise ImageReadError(
             f"depth file {path} has {raw.shape[2]} channels; expected a single-channel image"
         )
+    if raw.dtype in (np.uint8, np.int8):
+        raise ImageReadError(_depth_bits_message(path, "8-bit"))
     depth = raw.astype(np.float32) / np.float32(scale)
     bad = np.isin(raw, np.asarray(invalid, dtype=raw.dtype)) if invalid else np.zeros(raw.shape, bool)
     depth[bad | ~np.isfinite(depth)] = np.nan

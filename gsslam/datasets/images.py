@@ -21,17 +21,24 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from gsslam.datasets.base import DatasetError
-from gsslam.datasets.common import load_intrinsics_yaml, normalize_index
-from gsslam.datasets.image_io import IMAGE_SUFFIXES, Undistorter, image_size, read_color, to_rgb_float
+from gsslam.datasets.common import load_intrinsics_yaml, normalize_index, read_yaml_mapping
+from gsslam.datasets.image_io import (
+    IMAGE_SUFFIXES,
+    Undistorter,
+    check_image_files,
+    read_color,
+    to_rgb_float,
+)
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FPS = 30.0
-_YAML_EXAMPLE = "fx: 525.0\nfy: 525.0\ncx: 319.5\ncy: 239.5\n# distortion: [k1, k2, p1, p2]\n# fps: 30"
+_YAML_EXAMPLE = (
+    "{fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5} (optional: distortion: [k1, k2, p1, p2], fps: 30)"
+)
 
 
 class ImagesError(DatasetError):
@@ -74,9 +81,16 @@ class _Video:
 
 
 def _yaml_fps(path: Path) -> float | None:
-    data = yaml.safe_load(Path(path).read_text())
-    fps = data.get("fps") if isinstance(data, dict) else None
-    return float(fps) if fps is not None else None
+    fps = read_yaml_mapping(path, "intrinsics file", "fx, fy, cx, cy").get("fps")
+    if fps is None:
+        return None
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        raise ImagesError(f"intrinsics file {path}: fps must be a number, got {fps!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise ImagesError(f"intrinsics file {path}: fps must be a positive number, got {fps!r}")
+    return value
 
 
 class ImageSequenceDataset:
@@ -106,7 +120,8 @@ class ImageSequenceDataset:
                 raise ImagesError(
                     f"{self.root} holds no images ({', '.join(IMAGE_SUFFIXES)}); the sequence is empty"
                 )
-            width, height = image_size(self._files[0])
+            # headers only: a file of another size is refused now, not when the run reaches it
+            width, height = check_image_files(self._files, None, "image")
             source_fps = None
         elif self.root.is_file():
             self._video = _Video(self.root)
@@ -123,7 +138,7 @@ class ImageSequenceDataset:
         if intrinsics is None:
             raise ImagesError(
                 f"{self.root}: intrinsics are needed; pass intrinsics_file= (CLI: --intrinsics) "
-                "with a YAML like\n" + _YAML_EXAMPLE
+                "with a YAML mapping like: " + _YAML_EXAMPLE
             )
         if (intrinsics.width, intrinsics.height) != (width, height):
             raise ImagesError(

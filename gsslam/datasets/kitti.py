@@ -30,7 +30,7 @@ from gsslam.datasets.common import (
     parse_floats,
     read_rows,
 )
-from gsslam.datasets.image_io import image_size, read_color
+from gsslam.datasets.image_io import check_image_files, read_color
 from gsslam.geometry import invert_T
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
@@ -120,7 +120,7 @@ class KittiOdometryDataset:
         P = read_kitti_calib(seq_dir).get(f"P{camera}")
         if P is None:
             raise KittiError(f"{seq_dir}: the calibration has no P{camera}")
-        w, h = image_size(self._files[0])
+        w, h = check_image_files(self._files, None, "image")  # headers only, before any run
         self.intrinsics = CameraIntrinsics(
             float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2]), w, h
         )

@@ -11,9 +11,11 @@ CVPR 2013.
   Kinect depth of 7-Scenes is *not* registered to the colour camera (the original release says so);
   this loader hands it out as is, at the colour resolution. ``with_depth=False`` skips it.
 - Intrinsics: fx=fy=585, cx=320, cy=240, 640x480 unless ``intrinsics=`` is given; no distortion.
-- Ground truth: ``frame-XXXXXX.pose.txt``, a 4x4 camera-to-world matrix ``T_world_cam``. Pose files
-  are read when :meth:`ground_truth` is first asked for (or per frame); a missing file or a
-  non-finite matrix gives ``None`` for that frame.
+- Ground truth: ``frame-XXXXXX.pose.txt``, a 4x4 camera-to-world matrix ``T_world_cam``. Every pose
+  file is read when the dataset is opened, so a malformed one is refused before a run starts; a
+  missing file or a non-finite matrix (the convention for an untracked frame) gives ``None`` for
+  that frame.
+- Image sizes (and 16-bit depth) are checked from the file headers when the dataset is opened.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 
 from gsslam.datasets.base import DatasetError
 from gsslam.datasets.common import normalize_index
-from gsslam.datasets.image_io import read_color, read_depth
+from gsslam.datasets.image_io import check_image_files, read_color, read_depth
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
 log = logging.getLogger(__name__)
@@ -44,12 +46,13 @@ class SevenScenesError(DatasetError):
 def read_pose_txt(path: Path) -> np.ndarray | None:  # -> [4, 4] or None when absent / not finite
     if not path.is_file():
         return None
+    fix = "fix the file, or delete it (a frame without pose.txt has no ground truth)"
     try:
-        T = np.loadtxt(path, dtype=np.float64)
-    except ValueError:
-        raise SevenScenesError(f"{path}: expected a 4x4 matrix of numbers") from None
+        T = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except (ValueError, UnicodeDecodeError):
+        raise SevenScenesError(f"{path}: expected a 4x4 matrix of numbers; {fix}") from None
     if T.shape != (4, 4):
-        raise SevenScenesError(f"{path}: expected a 4x4 matrix, got shape {T.shape}")
+        raise SevenScenesError(f"{path}: expected a 4x4 matrix, got shape {T.shape}; {fix}")
     if not np.all(np.isfinite(T)):
         return None
     return T
@@ -100,8 +103,19 @@ class SevenScenesDataset:
                     f"{len(missing)} depth files are missing, e.g. {self._depth_path(missing[0])}; "
                     "restore them or pass with_depth=False"
                 )
+        size = (self.intrinsics.width, self.intrinsics.height)
+        check_image_files(self._color, size, "colour image")
+        if with_depth:
+            check_image_files([self._depth_path(p) for p in self._color], size, "depth map", depth=True)
+        self._poses = [read_pose_txt(self._pose_path(p)) for p in self._color]
+        idx = [i for i, T in enumerate(self._poses) if T is not None]
         self._gt: Trajectory | None = None
-        self._gt_loaded = False
+        if idx:
+            self._gt = Trajectory(
+                np.array([i / self._fps for i in idx]),
+                np.stack([self._poses[i] for i in idx]),
+                meta={"frame_indices": idx, "source": str(self.root)},
+            )
 
     @staticmethod
     def _depth_path(color: Path) -> Path:
@@ -134,27 +148,10 @@ class SevenScenesDataset:
                     f"{self._depth_path(self._color[i])} is {depth.shape[1]}x{depth.shape[0]} but the colour "
                     f"image is {w}x{h}; resize the depth to the colour resolution"
                 )
-        pose = read_pose_txt(self._pose_path(self._color[i]))
+        pose = None if self._poses[i] is None else self._poses[i].copy()
         return Frame(i, i / self._fps, image, self.intrinsics, depth, pose)
 
-    def _load_gt(self) -> None:
-        if self._gt_loaded:
-            return
-        self._gt_loaded = True
-        times, poses, idx = [], [], []
-        for i, color in enumerate(self._color):
-            T = read_pose_txt(self._pose_path(color))
-            if T is not None:
-                times.append(i / self._fps)
-                poses.append(T)
-                idx.append(i)
-        if poses:
-            self._gt = Trajectory(
-                np.array(times), np.stack(poses), meta={"frame_indices": idx, "source": str(self.root)}
-            )
-
     def ground_truth(self) -> Trajectory | None:
-        self._load_gt()
         return self._gt
 
     def ground_truth_at_frames(self) -> Trajectory | None:

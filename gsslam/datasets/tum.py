@@ -36,7 +36,7 @@ from gsslam.datasets.common import (
     read_rows,
     read_tum_trajectory,
 )
-from gsslam.datasets.image_io import Undistorter, read_color, read_depth
+from gsslam.datasets.image_io import Undistorter, check_image_files, read_color, read_depth
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
 log = logging.getLogger(__name__)
@@ -132,6 +132,12 @@ class TumRgbdDataset:
         self._times = rgb_t[keep]
         self._rgb = [rgb_files[k] for k in keep]
         self._depth = [depth_files[k] for k in keep]
+        # headers only: an odd-sized or 8-bit depth file is refused now, not when the run reaches it
+        size = (intrinsics.width, intrinsics.height)
+        check_image_files([self.root / f for f in self._rgb], size, "rgb image")
+        check_image_files(
+            [self.root / f for f in self._depth if f is not None], size, "depth map", depth=True
+        )
 
         gt_file = Path(gt_path) if gt_path is not None else self.root / "groundtruth.txt"
         traj: Trajectory | None = None

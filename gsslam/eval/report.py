@@ -10,6 +10,9 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+import numpy as np
+
+from gsslam.eval import EvalError
 from gsslam.eval.association import Association
 from gsslam.eval.ate import AteResult, compute_ate
 from gsslam.eval.rpe import RpeResult, compute_rpe
@@ -63,6 +66,24 @@ class EvalReport:
         return rows
 
 
+class TimeOrderError(EvalError):
+    """A trajectory's timestamps are not strictly increasing."""
+
+
+def check_time_order(traj: Trajectory, name: str) -> None:
+    """Refuse a trajectory whose timestamps are unsorted or repeated: RPE pairs poses in order."""
+    t = traj.timestamps
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        i = int(bad[0]) + 1
+        kind = "repeats" if t[i] == t[i - 1] else "comes before"
+        raise TimeOrderError(
+            f"{name}: pose {i + 1} (t={float(t[i])!r}) {kind} the pose above it (t={float(t[i - 1])!r}); "
+            "timestamps must be strictly increasing: sort the file by time (e.g. sort -g -k1) "
+            "and drop repeated stamps"
+        )
+
+
 def evaluate(
     gt: Trajectory,
     est: Trajectory,
@@ -76,7 +97,10 @@ def evaluate(
     """Associate, align (``sim3`` | ``se3`` | ``none``), then ATE and RPE; the inputs are not modified.
 
     ``one_to_one=False`` reproduces evo's pairing exactly (see :mod:`gsslam.eval.association`).
+    Both trajectories must be in strictly increasing time order (RPE pairs consecutive poses).
     """
+    check_time_order(gt, gt_name)
+    check_time_order(est, est_name)
     ate, assoc = compute_ate(gt, est, align=align, max_dt=max_dt, one_to_one=one_to_one)
     gt_poses = gt.poses[assoc.gt_indices]
     est_aligned = ate.alignment.apply_poses(est.poses[assoc.est_indices])

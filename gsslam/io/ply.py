@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from gsslam.errors import GsslamError
+from gsslam.io.atomic import atomic_write_bytes
 
 SH_C0 = 0.28209479177387814
 _PLY_TYPES = {
@@ -104,9 +105,7 @@ def write_ply(path: str | Path, g: GaussianPly) -> int:
     header += [f"property float {name}" for name in data.dtype.names]
     header += ["end_header"]
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(data.tobytes())
+    atomic_write_bytes(path, ("\n".join(header) + "\n").encode("ascii") + data.tobytes())
     return path.stat().st_size
 
 

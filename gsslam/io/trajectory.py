@@ -20,6 +20,7 @@ import numpy as np
 
 from gsslam.errors import GsslamError
 from gsslam.geometry import quat_to_rot, rot_to_quat
+from gsslam.io.atomic import atomic_write_text
 from gsslam.types import Trajectory
 
 _log = logging.getLogger(__name__)
@@ -121,7 +122,7 @@ def read_tum(path: str | Path) -> Trajectory:
 
 
 def write_tum(traj: Trajectory, path: str | Path) -> None:
-    Path(path).write_text(format_tum(traj))
+    atomic_write_text(path, format_tum(traj))
 
 
 # -------------------------------------------------------------------------------------------- KITTI
@@ -172,9 +173,9 @@ def read_kitti(path: str | Path, times_path: str | Path | None = None) -> Trajec
 
 
 def write_kitti(traj: Trajectory, path: str | Path, times_path: str | Path | None = None) -> None:
-    Path(path).write_text(format_kitti(traj))
+    atomic_write_text(path, format_kitti(traj))
     if times_path is not None:
-        Path(times_path).write_text(format_times(traj.timestamps))
+        atomic_write_text(times_path, format_times(traj.timestamps))
 
 
 # ------------------------------------------------------------------------------------------ dispatch

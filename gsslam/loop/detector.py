@@ -74,6 +74,10 @@ class LoopDetector:
     def record(self, submap_id: int) -> SubmapRecord:
         return self._records[submap_id]
 
+    def records(self) -> list[SubmapRecord]:
+        """Every registered submap's record, in the order they were added."""
+        return [self._records[i] for i in self._ids]
+
     def candidates(self, i: int, poses: Mapping[int, np.ndarray]) -> list[LoopCandidate]:
         """Overlapping earlier submaps of submap ``i``, best score first (not yet verified)."""
         cfg = self.cfg

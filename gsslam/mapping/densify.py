@@ -94,6 +94,7 @@ class DensifyStrategy:
         state: dict[str, torch.Tensor],
         active: torch.Tensor | None = None,  # [N] bool: Gaussians of the current window
         densify_only: bool = False,
+        generator: torch.Generator | None = None,  # seeded CPU generator for the split offsets
     ) -> tuple[GaussianModel, dict[str, torch.Tensor], dict[str, int]]:
         """Densify, prune and cap; returns the new (detached) model, its state and counts.
 
@@ -119,7 +120,9 @@ class DensifyStrategy:
         big = state["max_radius"][cand] >= self.split_radius_px
         split_idx, clone_idx = cand[big], cand[~big]
         model, state = self._clone(model, state, clone_idx)  # appends: original indices stay valid
-        model, state = self._split(model, state, split_idx)  # removes parents, appends two children each
+        model, state = self._split(
+            model, state, split_idx, generator
+        )  # removes parents, appends two children each
 
         # 2. prune
         # layout now: originals without split parents, clones, first children, second children
@@ -164,7 +167,7 @@ class DensifyStrategy:
         new_state = {k: state[k][idx].clone() for k in STATE_KEYS}
         return model.cat(child), {k: torch.cat([state[k], new_state[k]]) for k in STATE_KEYS}
 
-    def _split(self, model, state, idx):
+    def _split(self, model, state, idx, generator=None):
         """Replace each Gaussian in ``idx`` by two, sampled from it, with scales / split_factor."""
         if len(idx) == 0:
             return model, state
@@ -173,7 +176,9 @@ class DensifyStrategy:
         children = []
         for _ in range(2):
             c = parent.select(torch.arange(len(parent), device=model.device))
-            offset = torch.randn_like(c.means) * parent.scales
+            # drawn on the CPU from the map's own generator: the same run gives the same map
+            noise = torch.randn(c.means.shape, generator=generator, dtype=c.means.dtype)
+            offset = noise.to(c.means.device) * parent.scales
             c.means = parent.means + (R @ offset[..., None])[..., 0]
             c.log_scales = parent.log_scales - math.log(self.split_factor)
             children.append(c)

@@ -77,7 +77,7 @@ def finalize(state: MapState, iterations: int | None = None) -> dict:
             first = f if first is None else first
             if r < rounds:  # densify where the whole map still errs; no error-based pruning
                 state.model, state.densify_state, st = state.strategy.step(
-                    state.model, state.densify_state, densify_only=True
+                    state.model, state.densify_state, densify_only=True, generator=state.gen
                 )
                 densified += st["cloned"] + st["split"]
                 reset_error_state(state)

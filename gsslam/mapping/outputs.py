@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from gsslam.eval.image_metrics import psnr, ssim
+from gsslam.io.atomic import atomic_path
 from gsslam.io.ply import GaussianPly, write_ply
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.state import MapState, render_keyframe, render_pose
@@ -79,6 +80,7 @@ def keyframe_panels(state: MapState, out_dir: str | Path, n: int = 4) -> list[Pa
         ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
         dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
         p = out_dir / f"keyframe_{idx:06d}.png"
-        cv2.imwrite(str(p), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
+        with atomic_path(p) as tmp:
+            cv2.imwrite(str(tmp), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
         paths.append(p)
     return paths

@@ -26,6 +26,12 @@ _log = logging.getLogger(__name__)
 
 ALPHA_EPS = 1e-6  # depth is divided by alpha only where alpha > this (else 0)
 BACKENDS = ("auto", "c", "torch", "gsplat", "fast")  # "fast": the former name of "c"
+_USED: set[str] = set()  # the backends that rendered in this process (for a run's provenance)
+
+
+def backends_used() -> list[str]:
+    """The backends (``c``, ``torch``, ``gsplat``) that :func:`render` ran so far in this process."""
+    return sorted(_USED)
 
 
 class RasterizerUnavailableError(RasterizeError):
@@ -116,6 +122,7 @@ def render(
     width, height = int(width), int(height)
     proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near)
     if backend == "gsplat" or (backend == "auto" and means.is_cuda and _gsplat_available()):
+        _USED.add("gsplat")
         return _render_gsplat(
             proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near
         )
@@ -141,10 +148,12 @@ def render(
         if rasterize_cpu.unavailable_reason() is not None:
             _warn_fallback(rasterize_cpu.unavailable_reason())
     if backend == "torch" or (backend == "auto" and not _c_available(means)):
+        _USED.add("torch")
         feat, alpha = composite_reference(*args)
     else:
         from gsslam.mapping.rasterize_cpu import composite_cpu
 
+        _USED.add("c")
         feat, alpha = composite_cpu(*args)
     color = feat[..., :3]
     if background is not None:

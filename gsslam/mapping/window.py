@@ -50,7 +50,7 @@ def optimize_window(state: MapState, iterations: int | None = None) -> dict:
         first, last = adam_steps(state, iters, pick, pose_kfs, win)
         active = torch.isin(state.model.keyframe_id, torch.tensor(win, device=state.device))
         state.model, state.densify_state, dstats = state.strategy.step(
-            state.model, state.densify_state, active=active
+            state.model, state.densify_state, active=active, generator=state.gen
         )
     return run_stats(state, iters, t0, first, last, **dstats)
 

@@ -2,6 +2,15 @@
 
 ``trajectory.tum`` (every frame that has a pose, dataset timestamps), ``keyframes.tum``,
 ``metrics.json``, ``trajectory.png``; with the map: ``map.ply``, ``intrinsics.yaml`` and ``renders/``.
+
+Every file is written atomically (:mod:`gsslam.io.atomic`). ``metrics.json`` carries ``"status"``:
+``"running"`` (written when the run starts), ``"partial"`` (trajectories and their numbers are
+written; the slow map outputs are not yet) and ``"complete"``. So a second Ctrl-C while the map is
+being written, or a kill, never loses the files already complete.
+
+ATE is one number only when every chain is in one world frame: a single chain, or later chains
+re-localized against an earlier one (RGB-D, ``Chain.in_world``). Otherwise ``"ate"`` is ``null`` and
+``"ate_per_chain"`` gives one ATE per chain (each aligned on its own): never a silently mixed number.
 """
 
 from __future__ import annotations
@@ -18,6 +27,7 @@ import numpy as np
 
 from gsslam.errors import GsslamError
 from gsslam.eval.ate import compute_ate
+from gsslam.io.atomic import atomic_write_text
 from gsslam.io.trajectory import write_tum
 from gsslam.slam.pipeline import Pipeline
 from gsslam.types import Trajectory
@@ -39,7 +49,7 @@ def ate_metrics(gt: Trajectory | None, est: Trajectory, align: str) -> tuple[dic
         return None, None
     try:
         res, assoc = compute_ate(gt, est, align=align)
-    except GsslamError as e:
+    except (GsslamError, np.linalg.LinAlgError, ValueError) as e:  # numbers must never lose the files
         log.warning("no ATE: %s", e)
         return None, None
     return {
@@ -52,6 +62,33 @@ def ate_metrics(gt: Trajectory | None, est: Trajectory, align: str) -> tuple[dic
     }, (res, assoc)
 
 
+def write_metrics(out: Path, metrics: dict) -> None:
+    """``metrics.json``, atomically."""
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2, default=_json_default))
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    raise TypeError(f"{type(v).__name__} is not JSON serializable")
+
+
+def one_world(pipe: Pipeline) -> bool:
+    """True when every chain's placement in the world is verified (one chain, or re-localized ones)."""
+    return all(c.in_world for c in pipe.chains)
+
+
+def ate_per_chain(pipe: Pipeline, gt: Trajectory | None, poses: dict[int, np.ndarray], align: str) -> list:
+    """One ATE record per chain (``None`` where a chain has fewer than 3 poses with ground truth)."""
+    chain_of = pipe.frame_chains()
+    out = []
+    for cid in range(len(pipe.chains)):
+        mine = {i: T for i, T in poses.items() if chain_of.get(i) == cid}
+        ate, _ = ate_metrics(gt, trajectory_of(pipe, mine), align)
+        out.append({"chain": cid, "frames_posed": len(mine), "ate": ate})
+    return out
+
+
 def write_outputs(
     pipe: Pipeline,
     ds,
@@ -60,8 +97,10 @@ def write_outputs(
     done: int,
     interrupted: bool,
     before_batch: dict[int, np.ndarray] | None = None,
+    provenance: dict | None = None,
 ) -> dict:
-    """Write the trajectories, ``metrics.json``, the plot and the map outputs; returns the metrics."""
+    """Write the trajectories, ``metrics.json`` (partial), the plot, the map outputs, then ``metrics.json``
+    complete; returns the metrics."""
     try:
         poses = pipe.frame_poses()
         kf_poses = pipe.keyframe_poses()
@@ -82,11 +121,14 @@ def write_outputs(
         log.warning("keyframe images not saved: %s", e)
     align = "sim3" if pipe.monocular else "se3"
     gt = ds.ground_truth()
-    ate, pair = ate_metrics(gt, traj, align)
-    ate_kf, _ = ate_metrics(gt, kf_traj, align)
-    ate_bb, _ = ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch else (None, None)
+    joined = one_world(pipe)  # chains not in one world frame: no single ATE
+    ate, pair = ate_metrics(gt, traj, align) if joined else (None, None)
+    ate_kf, _ = ate_metrics(gt, kf_traj, align) if joined else (None, None)
+    ate_bb, _ = (
+        ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch and joined else (None, None)
+    )
     online = getattr(pipe, "online_poses", None)  # the pose process() returned for each frame
-    ate_on, _ = ate_metrics(gt, trajectory_of(pipe, online), align) if online else (None, None)
+    ate_on, _ = ate_metrics(gt, trajectory_of(pipe, online), align) if online and joined else (None, None)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     peak_mb = peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
     metrics = {
@@ -97,6 +139,7 @@ def write_outputs(
         "keyframes": len(kf_traj),
         "submaps": sum(len(c.encodings) for c in pipe.chains),
         "chains": len(pipe.chains),
+        "chains_in_world": sum(c.in_world for c in pipe.chains),
         "flow_factors": pipe.n_flow_factors,
         "wall_time_s": wall,
         "fps": done / wall if wall > 0 else 0.0,
@@ -106,18 +149,17 @@ def write_outputs(
         "ate_before_batch": ate_bb,
         "ate_online": ate_on,
         "frames_posed_online": len(online or {}),
+        "ate_per_chain": None if joined else ate_per_chain(pipe, gt, poses, align),
         "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
         "interrupted": interrupted,
         "mapper": None,
         "loop_closure": pipe.loop_stage.metrics(),
+        "provenance": dict(provenance or {}),
     }
+    metrics = {"status": "partial", **metrics}
     if pipe.map_stage is not None:
-        try:
-            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done)
-        except Exception as e:  # the map must never lose a run's trajectory and numbers
-            log.warning("map outputs failed: %s", e)
-            metrics["mapper"] = {"error": str(e)}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        metrics["mapper"] = {"status": "pending: the map outputs are written after this file"}
+    write_metrics(out, metrics)  # the trajectory's numbers are safe before the slow map outputs
     if pair is not None:
         try:
             from gsslam.viz.plots import plot_trajectory
@@ -133,6 +175,19 @@ def write_outputs(
             )
         except Exception as e:  # a plot must never lose a run's numbers
             log.warning("trajectory plot failed: %s", e)
+    if pipe.map_stage is not None:
+        try:
+            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done)
+        except Exception as e:  # the map must never lose a run's trajectory and numbers
+            log.warning("map outputs failed: %s", e)
+            metrics["mapper"] = {"error": str(e)}
+        from gsslam.mapping.rasterize import backends_used
+
+        metrics["provenance"]["rasterizer"] = backends_used()
+    else:
+        metrics["provenance"]["rasterizer"] = None
+    metrics["status"] = "complete"
+    write_metrics(out, metrics)
     return metrics
 
 
@@ -166,7 +221,8 @@ def write_map_outputs(
     ev = mapper.evaluate(frames, poses) if frames else {}
     ev.pop("per_frame_psnr", None)
     refined = stage.refined_keyframe_poses
-    if refined and kfs:  # the map after the joint refinement, seen from its own refined keyframe poses
+    # the map after the joint refinement, seen from its own refined keyframe poses (one chain only)
+    if refined and kfs and one_world(pipe):
         ev_r = mapper.evaluate([ds[i] for i in kfs], {i: refined[i] for i in kfs if i in refined})
         ev["psnr_keyframes_refined_poses"] = ev_r["psnr_keyframes"]
         ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]

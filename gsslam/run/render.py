@@ -18,6 +18,7 @@ import yaml
 
 from gsslam.errors import GsslamError
 from gsslam.geometry import invert_T
+from gsslam.io.atomic import atomic_path, atomic_write_text
 from gsslam.io.trajectory import TrajectoryIOError, read_tum
 from gsslam.types import CameraIntrinsics
 
@@ -32,8 +33,9 @@ def save_intrinsics(intrinsics: CameraIntrinsics, path: str | Path) -> None:
     """Write ``intrinsics.yaml`` (pinhole, no distortion) for :func:`render_run`."""
     i = intrinsics
     data = {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "width": i.width, "height": i.height}
-    Path(path).write_text(
-        yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v) for k, v in data.items()})
+    atomic_write_text(
+        path,
+        yaml.safe_dump({k: float(v) if k not in ("width", "height") else int(v) for k, v in data.items()}),
     )
 
 
@@ -41,13 +43,18 @@ def load_intrinsics(path: str | Path) -> CameraIntrinsics:
     p = Path(path)
     if not p.is_file():
         raise RenderRunError(f"{p} not found; the run must save its camera with save_intrinsics()")
-    d = yaml.safe_load(p.read_text()) or {}
     try:
+        d = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
         return CameraIntrinsics(
             float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), int(d["width"]), int(d["height"])
         )
     except KeyError as e:
         raise RenderRunError(f"{p}: missing key {e}; need fx, fy, cx, cy, width, height") from None
+    except (yaml.YAMLError, UnicodeDecodeError, TypeError, ValueError, AttributeError, GsslamError):
+        raise RenderRunError(
+            f"{p} is not a valid intrinsics file (a mapping of fx, fy, cx, cy, width, height); "
+            "rerun gsslam run to rewrite it"
+        ) from None
 
 
 def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N], T_world_cam [N, 4, 4]
@@ -79,9 +86,14 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
     max_side = 160
     cfg_path = run_dir / "config.yaml"
     if cfg_path.is_file():
-        max_side = int(
-            ((yaml.safe_load(cfg_path.read_text()) or {}).get("mapper") or {}).get("max_side", 160)
-        )
+        from gsslam.config import read_config_file
+
+        value = (read_config_file(cfg_path).get("mapper") or {}).get("max_side", 160)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 16:
+            raise RenderRunError(
+                f"{cfg_path}: mapper.max_side must be an integer >= 16, got {value!r}; fix or delete the file"
+            )
+        max_side = value
     intr = intr.scaled(min(1.0, max_side / max(intr.width, intr.height)))
     K = torch.tensor(intr.K, dtype=torch.float32)
     means = torch.as_tensor(g.means)
@@ -97,7 +109,8 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
             out = render(means, quats, scales, opac, rgb, T_cw, K, intr.width, intr.height)
         color = (out.color.clamp(0, 1).numpy() * 255).astype(np.uint8)[..., ::-1]
         dc = depth_colormap(out.depth.numpy(), out.alpha.numpy() > 0.5)
-        cv2.imwrite(str(out_dir / f"render_{i:06d}_{ts[i]:.6f}.png"), np.concatenate([color, dc], axis=1))
+        with atomic_path(out_dir / f"render_{i:06d}_{ts[i]:.6f}.png") as tmp:
+            cv2.imwrite(str(tmp), np.concatenate([color, dc], axis=1))
         count += 1
     _log.info("rendered %d of %d poses (%dx%d) to %s", count, len(poses), intr.width, intr.height, out_dir)
     return count

@@ -3,8 +3,11 @@
 Files in ``out`` (written by :mod:`gsslam.run.outputs`): ``trajectory.tum`` (every frame that has a
 pose, dataset timestamps), ``keyframes.tum``, ``config.yaml`` (the resolved config), ``metrics.json``
 (ATE when the dataset has ground truth: Sim(3)-aligned for mono, SE(3) for RGB-D; counts, wall time,
-FPS, peak RSS, tracking-loss events) and ``trajectory.png``. They are written in a ``finally`` so that
-an interrupted run (Ctrl-C) still leaves the trajectory estimated so far.
+FPS, peak RSS, tracking-loss events, provenance) and ``trajectory.png``. They are written in a
+``finally`` so that an interrupted run (Ctrl-C, SIGTERM through the CLI) still leaves the trajectory
+estimated so far. The folder is a :class:`gsslam.run.folder.RunFolder`: locked for the run, refused
+when it holds another run (unless ``overwrite``). ``metrics.json`` is written first with
+``"status": "running"`` and rewritten as the outputs progress (see :mod:`gsslam.run.outputs`).
 """
 
 from __future__ import annotations
@@ -18,10 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from gsslam.config import Config, save_config
+from gsslam.config import Config, save_config, validate_config
 from gsslam.datasets import open_dataset
 from gsslam.datasets.prefetch import FramePrefetcher
-from gsslam.run.outputs import write_outputs
+from gsslam.errors import GsslamError
+from gsslam.run.folder import RunFolder
+from gsslam.run.outputs import write_metrics, write_outputs
+from gsslam.run.provenance import provenance
 from gsslam.slam.pipeline import Pipeline
 
 log = logging.getLogger(__name__)
@@ -63,6 +69,14 @@ class RunResult:
             rows.append(
                 ("loops", f"{lp['detected']} detected, {lp['accepted']} accepted, {lp['rejected']} rejected")
             )
+        for rec in m.get("ate_per_chain") or []:
+            a = rec["ate"]
+            value = (
+                f"{100 * a['rmse_m']:.2f} cm ({a['align']}, {a['pairs']} poses)"
+                if a
+                else "no ground truth pairs"
+            )
+            rows.append((f"ATE RMSE chain {rec['chain']}", value))
         for key, label in (
             ("ate", "ATE RMSE (all frames)"),
             ("ate_keyframes", "ATE RMSE (keyframes)"),
@@ -73,6 +87,10 @@ class RunResult:
                 rows.append(
                     (label, f"{100 * m[key]['rmse_m']:.2f} cm ({m[key]['align']}, {m[key]['pairs']} poses)")
                 )
+        if m.get("ate_per_chain"):
+            rows.append(("chains", "not joined in one world frame: ATE per chain, no overall number"))
+        elif m.get("chains", 0) > 1:
+            rows.append(("chains", f"{m['chains']} chains re-localized into one world frame"))
         if m.get("interrupted"):
             rows.append(("interrupted", "yes: outputs hold the poses estimated so far"))
         rows.append(("outputs", str(self.out)))
@@ -86,46 +104,74 @@ def run_sequence(
     out: str | Path,
     max_frames: int | None = None,
     progress: bool | ProgressCallback = True,
+    overwrite: bool = False,
     **dataset_kwargs: Any,
 ) -> RunResult:
     """Open the dataset ``dataset_name`` at ``path`` and run :func:`run_dataset` on it.
 
     ``progress``: a callback ``(done, total, fps)`` called after every frame (the CLI draws a
     progress bar with it); ``True``/``False`` without a callback report nothing (the library never prints).
+    The dataset is opened (and its files checked) before ``out`` is touched.
     """
     if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
         # a monocular run reads no depth, so frames that only lack a depth image are kept
         dataset_kwargs.setdefault("with_depth", False)
     ds = open_dataset(dataset_name, path, **dataset_kwargs)
     callback = progress if callable(progress) else None
-    return run_dataset(ds, cfg, Path(out), max_frames=max_frames, progress=callback)
+    prov = provenance(cfg, path)
+    return run_dataset(
+        ds, cfg, Path(out), max_frames=max_frames, progress=callback, overwrite=overwrite, provenance=prov
+    )
 
 
 def run_dataset(
-    ds, cfg: Config, out: Path, max_frames: int | None = None, progress: ProgressCallback | None = None
+    ds,
+    cfg: Config,
+    out: Path,
+    max_frames: int | None = None,
+    progress: ProgressCallback | None = None,
+    overwrite: bool = False,
+    provenance: dict | None = None,
 ) -> RunResult:
-    """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``."""
+    """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``.
+
+    ``overwrite``: replace gsslam's files of an older run in ``out`` (else such a folder is refused).
+    ``provenance``: the record for ``metrics.json`` (default: :func:`gsslam.run.provenance.provenance`).
+    """
+    validate_config(cfg)  # a config built in Python has not been through load_config
+    if max_frames is not None and max_frames < 1:
+        raise RunError(f"max_frames must be >= 1, got {max_frames}")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, out / "config.yaml")
-    n = len(ds) if max_frames is None else min(len(ds), max_frames)
-    pipe = Pipeline(cfg, ds.intrinsics)
-    result = RunResult(out)
-    t0 = time.perf_counter()
-    done, interrupted = 0, True
-    before_batch: dict[int, np.ndarray] = {}
-    try:
-        with FramePrefetcher(ds, range(n)) as frames:  # decoding overlaps tracking; same order as ds[i]
-            for frame in frames:
-                pipe.process(frame)
-                done += 1
-                if progress is not None:
-                    progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
-        pipe.close_chain()  # the tail's submap, so that the poses before the batch refinement are complete
-        before_batch = pipe.frame_poses()
-        pipe.finish()
-        interrupted = False
-    finally:
-        wall = time.perf_counter() - t0
-        result.metrics = write_outputs(pipe, ds, out, wall, done, interrupted, before_batch)
+    prov = provenance if provenance is not None else _default_provenance(cfg, ds)
+    with RunFolder(out, overwrite=overwrite):
+        pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
+        save_config(cfg, out / "config.yaml")
+        write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})
+        n = len(ds) if max_frames is None else min(len(ds), max_frames)
+        result = RunResult(out)
+        t0 = time.perf_counter()
+        done, interrupted = 0, True
+        before_batch: dict[int, np.ndarray] = {}
+        try:
+            with FramePrefetcher(ds, range(n)) as frames:  # decoding overlaps tracking; same order as ds[i]
+                for frame in frames:
+                    pipe.process(frame)
+                    done += 1
+                    if progress is not None:
+                        progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
+            pipe.close_chain()  # the tail's submap: the poses before the batch refinement are complete
+            before_batch = pipe.frame_poses()
+            pipe.finish()
+            interrupted = False
+        finally:
+            wall = time.perf_counter() - t0
+            result.metrics = write_outputs(pipe, ds, out, wall, done, interrupted, before_batch, prov)
     return result
+
+
+class RunError(GsslamError):
+    """A run was asked for with arguments that cannot work."""
+
+
+def _default_provenance(cfg: Config, ds) -> dict:
+    return provenance(cfg, getattr(ds, "root", None))

@@ -2,7 +2,9 @@
 
 A chain is a run of consecutive submaps linked through shared keyframes and optimised in one graph
 (:class:`gsslam.graph.submap_graph.SubmapGraph`). Tracking loss closes a chain; the next one starts
-at the current frame, placed in the output world at the last tracked pose.
+at the current frame, placed in the output world at the last tracked pose (a guess: ``in_world`` is
+False) until re-localization against an earlier chain places it for real (RGB-D,
+:meth:`gsslam.slam.loop_stage.LoopStage.relocalize`).
 """
 
 from __future__ import annotations
@@ -39,3 +41,4 @@ class Chain:
     T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world
     encodings: list[SubmapEncoding] = field(default_factory=list)
     failed: bool = False  # an update threw: no further optimisation of this graph
+    in_world: bool = False  # T_world_chain is verified (the first chain, or re-localized against one)

@@ -11,7 +11,10 @@ After submap ``i`` has been added to its chain's graph and the graph updated
    (``update(extra_iterations=10)``);
 4. the pipeline then moves the Gaussian map with the new estimates (``MapStage.follow_graph``).
 
-Loops are searched inside one chain (each chain has its own graph and submap ids).
+Loops are searched inside one chain (each chain has its own graph and submap ids). Across chains,
+:meth:`LoopStage.relocalize` places a new RGB-D chain in the world frame of an earlier one
+(:mod:`gsslam.loop.relocalize`): the chains then share one world frame (their graphs stay separate).
+A monocular chain has its own scale and is not re-joined yet.
 """
 
 from __future__ import annotations
@@ -26,6 +29,17 @@ from gsslam.types import Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
 
+ICP_MIN_FITNESS = 0.1  # share of the new submap's points that meet the earlier chain's surface
+ICP_MAX_ROT_DEG = 5.0  # ICP refines the verified estimate; a larger move means it slid away
+
+
+def close_to(T_a: np.ndarray, T_b: np.ndarray, max_trans: float) -> bool:
+    """Whether two rigid transforms differ by less than ``max_trans`` and ``ICP_MAX_ROT_DEG``."""
+    D = np.linalg.inv(T_b) @ T_a
+    angle = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    return bool(np.linalg.norm(D[:3, 3]) < max_trans and angle < ICP_MAX_ROT_DEG)
+
+
 _STAT_KEYS = ("candidates", "detected", "accepted", "rejected", "rejected_after_optimisation")
 
 
@@ -39,6 +53,8 @@ class LoopStage:
         self._detectors: dict[int, object] = {}
         self._loops: dict[int, dict] = {}  # chain -> {graph handle: LoopConstraint}
         self.corrections = 0  # graph updates caused by loops
+        self.relocalized: list[dict] = []  # chains placed in the world frame by re-localization
+        self._reloc_rng = np.random.default_rng(seed + 7919)
 
     def _detector(self, cid: int):
         if cid not in self._detectors:
@@ -79,6 +95,56 @@ class LoopStage:
         self.corrections += 1
         return True
 
+    def relocalize(self, chains, cid: int, sid: int) -> np.ndarray | None:
+        """``T_world_chain`` for chain ``cid`` from its submap ``sid`` verified against an earlier chain
+        that is in the world frame, or None (RGB-D only; loop closure must be enabled)."""
+        from gsslam.geometry import invert_T
+        from gsslam.loop.relocalize import relocalize
+
+        if not self.cfg.enabled or self.mode != "rgbd" or cid not in self._detectors:
+            return None
+        rec_i = self._detectors[cid].record(sid)
+        for pid in range(cid):
+            if pid not in self._detectors or not chains[pid].in_world or chains[pid].failed:
+                continue
+            loop = relocalize(rec_i, self._detectors[pid].records(), self.cfg, self.mode, self._reloc_rng)
+            if loop is None:
+                continue
+            # in chain pid's frame: submap i of chain cid sits at T_p_i (RANSAC), refined by ICP against
+            # the dense points of every submap of chain pid
+            gp = chains[pid].graph
+            T_p_i, fitness = gp.submap_pose(loop.m) @ invert_T(loop.T_i_m), None
+            if sid < len(chains[cid].encodings) and chains[pid].encodings:
+                from gsslam.loop.relocalize import local_points, refine_rigid
+
+                thr = self.cfg.inlier_threshold_m  # ICP gate: the loop inlier distance (metres)
+                pts_i = local_points(chains[cid].encodings[sid], thr / 5)
+                pts_p = []
+                for k, enc in enumerate(chains[pid].encodings):
+                    T = gp.submap_pose(k)
+                    pts_p.append(local_points(enc, thr / 5) @ T[:3, :3].T + T[:3, 3])
+                pts_p = np.concatenate(pts_p)
+                if len(pts_i) >= 100 and len(pts_p) >= 100:
+                    T_ref, fitness = refine_rigid(T_p_i, pts_p, pts_i, thr)
+                    T_ref, _ = refine_rigid(T_ref, pts_p, pts_i, thr / 2)  # then a tighter gate
+                    if fitness >= ICP_MIN_FITNESS and close_to(T_ref, T_p_i, 2 * thr):
+                        T_p_i = T_ref  # else the RANSAC estimate stays
+            T_world_i = chains[pid].T_world_chain @ T_p_i
+            self.relocalized.append(
+                {
+                    "chain": cid,
+                    "submap": sid,
+                    "to_chain": pid,
+                    "to_submap": loop.m,
+                    "inliers": len(loop),
+                    "icp_fitness": fitness,
+                }  # fmt: skip
+            )
+            log.info("chain %d re-localized against chain %d (submap %d-%d, %d inliers)",
+                     cid, pid, sid, loop.m, len(loop))  # fmt: skip
+            return T_world_i @ invert_T(chains[cid].graph.submap_pose(sid))
+        return None
+
     def metrics(self) -> dict:
         """Loop counters summed over chains (``LoopStats.to_dict`` fields) and the loops in the graphs."""
         out: dict = {k: 0 for k in _STAT_KEYS}
@@ -94,4 +160,5 @@ class LoopStage:
             checked += det.stats.submaps_checked
         out["mean_detect_ms"] = detect_ms / max(1, checked)
         out["in_graph"] = sum(len(v) for v in self._loops.values())
+        out["relocalized"] = list(self.relocalized)
         return out

@@ -16,7 +16,10 @@ Per frame (:meth:`Pipeline.process`):
 
 Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the current chain of
 submaps and starts a new one at the current frame (its own graph; its world placement is the
-last tracked pose). Outputs are written by :mod:`gsslam.run` (the pipeline writes no files).
+last tracked pose). A time gap longer than ``cfg.pipeline.max_time_gap_s`` is a ``gap`` event; a
+monocular run also starts a new chain there (it cannot bridge the gap), an RGB-D run lets tracking
+decide. Chains are not re-joined yet: the runner reports ATE per chain. Outputs are written by
+:mod:`gsslam.run` (the pipeline writes no files).
 """
 
 from __future__ import annotations
@@ -122,7 +125,16 @@ class Pipeline:
         self.n_frames += 0 if retry else 1
         if self.monocular and frame.depth is not None:
             frame = dataclasses.replace(frame, depth=None)  # a monocular run never sees sensor depth
+        gap = self._time_gap(frame) if not retry else None
         self.timestamps[frame.index] = frame.timestamp
+        if gap is not None:
+            self.events.append(Event(frame.index, "gap", f"{gap:.2f} s without frames before this one"))
+            log.warning("frame %d: %.2f s without frames before it", frame.index, gap)
+            if self.monocular and self.window:  # mono cannot bridge a gap: its scale and motion are lost
+                self.close_chain()
+                self.events.append(Event(frame.index, "new_chain", "after a time gap"))
+                self._start_chain(frame)
+                return
         if not self.window:
             self._start_chain(frame)
             return self._remember(frame.index, self.online_poses.get(frame.index))
@@ -209,6 +221,13 @@ class Pipeline:
                 return None
         return T_world_ref @ self._to_world_units(ref, T_ref_cur)
 
+    def _time_gap(self, frame: Frame) -> float | None:
+        """Seconds since the previous frame when more than ``pipeline.max_time_gap_s``, else None."""
+        if not self.timestamps:
+            return None
+        dt = frame.timestamp - max(self.timestamps.values())
+        return dt if dt > self.cfg.pipeline.max_time_gap_s else None
+
     def _tracking_failure(self, frame: Frame, reason: str) -> None:
         self.events.append(Event(frame.index, reason, f"tracking failed ({reason})"))
         log.warning("frame %d: tracking failed (%s)", frame.index, reason)
@@ -227,7 +246,7 @@ class Pipeline:
         from gsslam.graph.submap_graph import SubmapGraph
 
         T = self.current_pose_estimate()
-        self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T))
+        self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T, in_world=not self.chains))
         self.online_poses[frame.index] = T.copy()
         self.window = [frame]
         self.prev_frames = []
@@ -289,6 +308,7 @@ class Pipeline:
                 self._call_plugins(chain, cid, "submap", [dict(submap=sid, frame_index=frames[-1].index)])
                 self._update_graph(chain, sid, frames[-1].index)
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
+            self._relocalize(chain, cid, sid, frames[-1].index)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
@@ -340,6 +360,19 @@ class Pipeline:
                     where = -1 if idx is None else idx
                     self.events.append(Event(where, "plugin", f"{type(plugin).__name__}.on_{kind}: {e!r}"))
                     log.warning("plugin %s.on_%s failed: %r", type(plugin).__name__, kind, e)
+
+    def _relocalize(self, chain: Chain, cid: int, sid: int, frame_index: int) -> None:
+        """A chain not yet in the world frame: try to place it against an earlier chain's submaps."""
+        if chain.in_world:
+            return
+        T = self.loop_stage.relocalize(self.chains, cid, sid)
+        if T is None:
+            return
+        chain.T_world_chain = T
+        chain.in_world = True
+        self.events.append(Event(frame_index, "rejoined", f"chain {cid} placed in the world frame"))
+        if self.map_stage is not None and sid > 0:  # its earlier submaps are in the map already
+            self.map_stage.follow_graph(self.chains)
 
     def _map_submap(self, chain, cid, sid, enc, frames, added, flows) -> None:
         """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""
@@ -427,6 +460,18 @@ class Pipeline:
         # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
         out.update(interpolate_poses(out, [m.cur_index for m, _ in self.pending], self.timestamps))
         return dict(sorted(out.items()))
+
+    def frame_chains(self) -> dict[int, int]:
+        """The chain of every frame that can have a pose: its keyframe's chain (or the tracked chain)."""
+        out = {idx: kf.chain for idx, kf in self.keyframes.items()}
+        for idx, (ref, _T) in self.relative.items():
+            if ref in self.keyframes:
+                out[idx] = self.keyframes[ref].chain
+        for m, cid in self.pending:
+            out[m.cur_index] = cid
+        if self.window and self.chains:  # the origin of a chain that has no submap yet
+            out.setdefault(self.window[0].index, len(self.chains) - 1)
+        return out
 
     def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
         """Scale a relative pose measured in the keyframe's submap units to world units."""

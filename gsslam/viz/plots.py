@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from gsslam.errors import GsslamError
+from gsslam.io.atomic import atomic_path
 
 
 class PlotError(GsslamError):
@@ -70,7 +71,8 @@ def plot_trajectory(
     out = Path(path)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, format="png")
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, format="png")
     except OSError as e:
         raise PlotError(f"cannot write plot {out}: {e}") from None
     return out

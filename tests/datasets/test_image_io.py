@@ -87,3 +87,28 @@ def test_check_increasing():
         check_increasing(np.array([1.0, 2.0, 2.0]), "x")
     with pytest.raises(DatasetError, match=r"line 7"):
         check_increasing(np.array([1.0, 3.0, 2.0]), "x", [5, 6, 7])
+
+
+def test_headers_are_checked_without_decoding(tmp_path):
+    from gsslam.datasets.image_io import check_image_files
+
+    for name, arr in (
+        ("a.png", np.zeros((6, 8, 3), np.uint8)),
+        ("b.png", np.zeros((6, 8, 3), np.uint8)),
+        ("d16.png", np.ones((6, 8), np.uint16)),
+        ("d8.png", np.ones((6, 8), np.uint8)),
+        ("odd.png", np.zeros((4, 8, 3), np.uint8)),
+    ):
+        cv2.imwrite(str(tmp_path / name), arr)
+    assert check_image_files([tmp_path / "a.png", tmp_path / "b.png"], None, "image") == (8, 6)
+    assert check_image_files([tmp_path / "d16.png"], (8, 6), "depth map", depth=True) == (8, 6)
+    with pytest.raises(DatasetError, match=r"odd\.png is 8x4 but a\.png is 8x6"):
+        check_image_files([tmp_path / "a.png", tmp_path / "odd.png"], None, "image")
+    with pytest.raises(DatasetError, match=r"odd\.png is 8x4 but the camera calibration is for 8x6"):
+        check_image_files([tmp_path / "odd.png"], (8, 6), "image")
+    with pytest.raises(DatasetError, match=r"d8\.png is 8-bit; depth must be a single-channel 16-bit"):
+        check_image_files([tmp_path / "d8.png"], (8, 6), "depth map", depth=True)
+    with pytest.raises(DatasetError, match="8-bit"):
+        read_depth(tmp_path / "d8.png", 1000.0)
+    with pytest.raises(DatasetError, match="missing"):
+        check_image_files([tmp_path / "nope.png"], None, "image")

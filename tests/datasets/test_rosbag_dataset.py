@@ -11,9 +11,8 @@ from gsslam.datasets.base import open_dataset
 from gsslam.datasets.tum import TumRgbdDataset
 
 pytest.importorskip("rosbags", reason="rosbags (extra 'ros', in dev) reads and writes the bags")
-from helpers.bags import write_bag  # noqa: E402
-
 from gsslam.datasets.rosbag import RosbagError  # noqa: E402
+from helpers.bags import write_bag  # noqa: E402
 
 N = 24
 

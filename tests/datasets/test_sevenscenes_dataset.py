@@ -61,20 +61,30 @@ def test_missing_or_invalid_poses(tmp_path):
     assert ds[1].T_world_cam_gt is None and ds[2].T_world_cam_gt is None
     assert ds.ground_truth().meta["frame_indices"] == [0]
     (seq / "frame-000000.pose.txt").write_text("1 0 0\n0 1 0\n")
-    with pytest.raises(DatasetError, match="4x4"):
-        ds[0]
+    # a malformed pose file is refused when the dataset is opened, naming the file and the fix
+    with pytest.raises(DatasetError, match=r"frame-000000\.pose\.txt: expected a 4x4.*delete it"):
+        SevenScenesDataset(seq)
 
 
 def test_malformed(tmp_path):
     seq = tmp_path / "seq-03"
     write_sequence(seq)
+    good = (seq / "frame-000000.depth.png").read_bytes()
     cv2.imwrite(str(seq / "frame-000000.depth.png"), np.ones((240, 320), np.uint16))
+    with pytest.raises(DatasetError, match=r"frame-000000\.depth\.png is 320x240 but .* 640x480"):
+        SevenScenesDataset(seq)  # sizes are checked from the headers when the dataset is opened
+    cv2.imwrite(str(seq / "frame-000000.depth.png"), np.ones((480, 640), np.uint8))
+    with pytest.raises(DatasetError, match="8-bit.*16-bit"):
+        SevenScenesDataset(seq)
+    (seq / "frame-000000.depth.png").write_bytes(good)
     ds = SevenScenesDataset(seq)
-    with pytest.raises(DatasetError, match="colour resolution"):
-        ds[0]
+    color = (seq / "frame-000001.color.png").read_bytes()
     (seq / "frame-000001.color.png").write_bytes(b"broken")
     with pytest.raises(DatasetError, match="corrupt"):
-        ds[1]
+        ds[1]  # broken after opening: refused when read
+    with pytest.raises(DatasetError, match=r"frame-000001\.color\.png \(corrupt"):
+        SevenScenesDataset(seq)  # broken before opening: refused from its header
+    (seq / "frame-000001.color.png").write_bytes(color)
     (seq / "frame-000002.depth.png").unlink()
     with pytest.raises(DatasetError, match="with_depth=False"):
         SevenScenesDataset(seq)

@@ -3,6 +3,8 @@ and degenerate inputs (pure rotation, black, repeated frames) that must be flagg
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 

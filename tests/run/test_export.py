@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-from helpers.run_folder import make_run
 
 from gsslam.io.colmap import read_colmap_text
 from gsslam.io.inria import inria_property_names, read_ply_property_names
@@ -14,6 +13,7 @@ from gsslam.io.nerfstudio import read_transforms
 from gsslam.io.ply import read_ply
 from gsslam.io.trajectory import read_tum
 from gsslam.run.export import ExportError, export_run
+from helpers.run_folder import make_run
 
 
 def test_colmap_export_with_images(tmp_path):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers.run_folder import make_run
 
 from gsslam.io.ply import read_ply
 from gsslam.io.trajectory import read_tum
+from helpers.run_folder import make_run
 
 pytest.importorskip("rerun", reason="rerun-sdk (extra 'viz', in dev) writes and reads the recording")
 from rerun.chunk import RrdReader  # noqa: E402

@@ -5,18 +5,20 @@ right-perturbation chart (see :mod:`factors._lie`); batched factors carry all po
 See docs/factors.md for residuals, dimensions, frames and units.
 """
 
-from factors._lie import to_gtsam, to_matrix
-from factors.depth_prior import make_depth_prior_factor
-from factors.errors import FactorInputError
-from factors.flow import make_flow_factor, mixture_weights
-from factors.points import make_point_factor
-from factors.scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
-from factors.submap_alignment import make_submap_alignment_factor
+from ._lie import to_gtsam, to_matrix
+from .depth_prior import make_depth_prior_factor
+from .errors import FactorInputError
+from .flow import make_flow_factor, mixture_weights
+from .keyframe_pose import make_keyframe_pose_factor
+from .points import make_point_factor
+from .scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
+from .submap_alignment import make_submap_alignment_factor
 
 __all__ = [
     "FactorInputError",
     "make_depth_prior_factor",
     "make_flow_factor",
+    "make_keyframe_pose_factor",
     "make_point_factor",
     "make_scale_factor",
     "make_scale_prior_factor",

@@ -15,7 +15,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.errors import FactorInputError
+from .errors import FactorInputError
 
 GROUPS = ("pose3", "sim3")
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors._lie import check_count, check_positive, check_shape, fill
-from factors.errors import FactorInputError
+from ._lie import check_count, check_positive, check_shape, fill
+from .errors import FactorInputError
 
 
 def make_depth_prior_factor(

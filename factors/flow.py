@@ -28,7 +28,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors._lie import (
+from ._lie import (
     action_jacobian,
     check_count,
     check_group,
@@ -37,7 +37,7 @@ from factors._lie import (
     inverse_action_jacobian,
     read_transform,
 )
-from factors.errors import FactorInputError
+from .errors import FactorInputError
 
 _MIN_Z = 1e-6
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors._lie import (
+from ._lie import (
     action_jacobian,
     check_count,
     check_group,
@@ -28,7 +28,7 @@ from factors._lie import (
     fill,
     read_transform,
 )
-from factors.errors import FactorInputError
+from .errors import FactorInputError
 
 
 def point_residual(A, B, X_a: np.ndarray, X_b: np.ndarray, w: np.ndarray, group: str, want_jac: bool = True):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors._lie import check_positive, fill
+from ._lie import check_positive, fill
 
 
 def median_depth_ratio(depth_prev: np.ndarray, depth_next: np.ndarray) -> float:
@@ -32,7 +32,7 @@ def median_depth_ratio(depth_prev: np.ndarray, depth_next: np.ndarray) -> float:
     maps gave scale errors of 1.1-4x on TUM teddy). Otherwise (different sizes, or fewer than 3
     common pixels) it falls back to the ratio of the two medians.
     """
-    from factors.errors import FactorInputError
+    from .errors import FactorInputError
 
     a = np.asarray(depth_prev, dtype=np.float64)
     b = np.asarray(depth_next, dtype=np.float64)
@@ -53,7 +53,7 @@ def make_scale_factor(key_a: int, key_b: int, log_scale: float, sigma: float) ->
     """``log s_b - log s_a ~ log_scale`` on two Similarity3 keys (``sigma`` in log units)."""
     log_scale = float(log_scale)
     if not np.isfinite(log_scale):
-        from factors.errors import FactorInputError
+        from .errors import FactorInputError
 
         raise FactorInputError(f"log_scale must be finite, got {log_scale}")
     noise = gtsam.noiseModel.Isotropic.Sigma(1, check_positive("sigma", sigma))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors._lie import (
+from ._lie import (
     check_group,
     check_positive,
     check_shape,
@@ -29,7 +29,7 @@ from factors._lie import (
     so3_log,
     so3_right_jacobian_inv,
 )
-from factors.errors import FactorInputError
+from .errors import FactorInputError
 
 
 def alignment_residual(A, B, Z: np.ndarray, group: str, want_jac: bool = True):

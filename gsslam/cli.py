@@ -377,9 +377,10 @@ def _bench(name: str, **kwargs) -> None:
 def bench_graph(
     sizes: Annotated[str, typer.Option(help="Comma-separated keyframe counts.")] = "50,200,800",
     points: Annotated[int, typer.Option(help="Flow correspondences per keyframe pair.")] = 1000,
+    imu: Annotated[bool, typer.Option(help="Add CombinedImuFactors (synthesized 200 Hz IMU).")] = False,
 ) -> None:
     """iSAM2 update time per keyframe and batch LM time on a synthetic chain."""
-    _bench("graph", sizes=_int_list(sizes, "--sizes"), points=points)
+    _bench("graph", sizes=_int_list(sizes, "--sizes"), points=points, imu=imu)
 
 
 @bench_app.command("raster")

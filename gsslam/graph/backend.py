@@ -6,11 +6,19 @@ user swaps sensors in by adding their own factors; see docs/graph.md. Every fact
 (an int, stable for the backend's lifetime) that maps to its iSAM2 factor index once it was sent;
 :meth:`Backend.remove_factors` removes factors by handle (e.g. a rejected loop) through iSAM2's
 ``removeFactorIndices`` at the next update.
+
+The backend cannot be poisoned: :meth:`Backend.update` rejects a buffered factor that names a variable
+without a value, and when iSAM2 itself fails (an indeterminate system, a factor that throws) it rolls
+iSAM2 back to the last good state, finds the buffered factors to blame (each one whose removal makes the
+system solvable; the whole batch when no single one does), applies everything else and raises
+:class:`RejectedError` naming what it dropped and why. The graph stays usable after the error.
 """
 
 from __future__ import annotations
 
 import logging
+import re
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -22,6 +30,67 @@ log = logging.getLogger(__name__)
 
 class BackendError(GsslamError):
     """A factor or value the backend cannot use (unknown key, duplicate value, unknown handle)."""
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """One factor (``handle`` set) or value (``key`` set) that :meth:`Backend.update` dropped."""
+
+    what: str  # e.g. "factor 'gps x23' (PriorFactorPose3 on x23)" or "value b3 (ConstantBias)"
+    cause: str  # e.g. "missing key x23: it has no value"
+    handle: int | None = None
+    key: int | None = None
+
+
+class RejectedError(BackendError):
+    """:meth:`Backend.update` dropped some buffered factors/values; every other change WAS applied.
+
+    The graph is usable: the next update works without further action. ``rejected`` lists what was
+    dropped (:class:`Rejection`).
+    """
+
+    def __init__(self, rejected: list[Rejection]):
+        self.rejected = list(rejected)
+        lines, seen = [], set()
+        for r in self.rejected:
+            if r.cause.endswith(_BATCH):  # one line for a rolled-back batch
+                if _BATCH not in seen:
+                    n = sum(r_.handle is not None and r_.cause.endswith(_BATCH) for r_ in self.rejected)
+                    vals = [r_.what.split()[1] for r_ in self.rejected if r_.key is not None]
+                    lines.append(
+                        f"the whole update ({n} factors, new values {','.join(vals) or 'none'}): "
+                        f"{r.cause[: -len(_BATCH)]}; no single factor of the batch is to blame"
+                    )
+                    seen.add(_BATCH)
+            elif r.key is None or not r.cause.startswith("rolled back"):
+                lines.append(f"{r.what}: {r.cause}")
+        super().__init__("rejected and rolled back " + "; ".join(lines))
+
+
+_BATCH = " [batch]"
+
+
+def _first_line(e: BaseException) -> str:
+    """The first non-empty line of an exception message (gtsam's start with a newline)."""
+    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+    text = " ".join(lines[:2]) if lines else type(e).__name__
+    if not isinstance(e, RuntimeError):
+        text = f"{type(e).__name__}: {text}"
+    # gtsam prints the raw key integer next to the symbol name; keep the symbol only
+    return re.sub(r"\s*\d{6,}\s*\(Symbol: (\w+)\)", r" \1", text)
+
+
+def _at(values: gtsam.Values, key: int, type_name: str):
+    return getattr(values, f"at{type_name}")(key)
+
+
+def _dim(values: gtsam.Values, key: int, type_name: str) -> int:
+    v = _at(values, key, type_name)
+    return int(np.size(v)) if isinstance(v, (float, int, np.ndarray)) else int(v.dim())
+
+
+def _keys(factor) -> str:
+    return ",".join(gtsam.DefaultKeyFormatter(k) for k in factor.keys())
 
 
 def _type_name(value) -> str:
@@ -48,6 +117,7 @@ class Backend:
         self._new_values = gtsam.Values()
         self._types: dict[int, str] = {}  # key -> gtsam type name (for typed estimates)
         self._next_handle = 0
+        self._names: dict[int, str] = {}  # handle -> user-given name
         self._estimate: gtsam.Values | None = None
         self.last_result: gtsam.ISAM2Result | None = None
 
@@ -58,13 +128,18 @@ class Backend:
         return cls(isam_params(cfg), cfg.batch_max_iterations)
 
     # -- building ---------------------------------------------------------------------------
-    def add_factor(self, factor: gtsam.NonlinearFactor) -> int:
-        """Buffer ``factor`` for the next :meth:`update`; returns its handle."""
-        if factor is None:
-            raise BackendError("add_factor got None; pass a gtsam factor")
+    def add_factor(self, factor: gtsam.NonlinearFactor, name: str | None = None) -> int:
+        """Buffer ``factor`` for the next :meth:`update`; returns its handle.
+
+        ``name`` appears in every message about the factor (e.g. when :meth:`update` rejects it).
+        """
+        if factor is None or not isinstance(factor, gtsam.NonlinearFactor):
+            raise BackendError(f"add_factor needs a gtsam factor, got {type(factor).__name__}")
         handle = self._next_handle
         self._next_handle += 1
         self._factors[handle] = factor
+        if name:
+            self._names[handle] = str(name)
         self._pending.append(handle)
         return handle
 
@@ -84,14 +159,25 @@ class Backend:
             if h not in self._factors:
                 raise BackendError(f"unknown or already removed factor handle {h}")
             del self._factors[h]
+            self._names.pop(h, None)
             if h in self._index:
                 self._to_remove.append(h)
             else:
                 self._pending.remove(h)
 
+    def describe_factor(self, handle: int) -> str:
+        """``factor 'name' (Type on s0,s1)`` or ``factor #12 (Type on s0,s1)`` (for messages)."""
+        f = self._factors[handle]
+        label = repr(self._names[handle]) if handle in self._names else f"#{handle}"
+        return f"factor {label} ({type(f).__name__} on {_keys(f)})"
+
     # -- solving ----------------------------------------------------------------------------
     def update(self, extra_iterations: int = 0) -> gtsam.ISAM2Result | None:
-        """One iSAM2 update with the buffered factors, values and removals (+ optional extra steps)."""
+        """One iSAM2 update with the buffered factors, values and removals (+ optional extra steps).
+
+        Raises :class:`RejectedError` after applying everything else when some buffered factors or
+        values had to be dropped (see the module doc); the backend stays usable.
+        """
         if (
             not self._pending
             and not self._to_remove
@@ -99,46 +185,193 @@ class Backend:
             and not extra_iterations
         ):
             return None
-        graph = gtsam.NonlinearFactorGraph()
-        for h in self._pending:
-            self._check_keys(self._factors[h])
-            graph.add(self._factors[h])
-        remove = [self._index.pop(h) for h in self._to_remove]
+        rejected = self._reject_missing_keys()
         try:
-            result = self._isam.update(graph, self._new_values, remove)
-        except RuntimeError as e:
-            raise BackendError(f"iSAM2 update failed: {e}") from e
-        for h, idx in zip(self._pending, result.getNewFactorsIndices()):
-            self._index[h] = int(idx)
-        self._pending, self._to_remove, self._new_values = [], [], gtsam.Values()
+            result = self._send()
+        except Exception as e:  # noqa: BLE001 - gtsam and user factors throw anything; we roll back
+            self._rollback()
+            result = self._retry_with_qr(e)
+            if result is None:
+                rejected += self._blame(e)
+                result = self._send()  # the rest; _blame made sure it is solvable
         for _ in range(extra_iterations):
             result = self._isam.update()
         self._estimate = None
         self.last_result = result
+        if rejected:
+            for r in rejected:
+                log.warning("backend rejected %s: %s", r.what, r.cause)
+            raise RejectedError(rejected)
         return result
 
-    def _check_keys(self, factor) -> None:
-        for k in factor.keys():
-            if k not in self._types:
-                raise BackendError(
-                    f"a factor uses variable {gtsam.DefaultKeyFormatter(k)} that has no value; "
-                    "call add_value(key, initial_value) first"
-                )
+    def _send(self) -> gtsam.ISAM2Result:
+        graph = gtsam.NonlinearFactorGraph()
+        for h in self._pending:
+            graph.add(self._factors[h])
+        remove = [self._index[h] for h in self._to_remove]
+        result = self._isam.update(graph, self._new_values, remove)
+        for h in self._to_remove:
+            del self._index[h]
+        for h, idx in zip(self._pending, result.getNewFactorsIndices()):
+            self._index[h] = int(idx)
+        self._pending, self._to_remove, self._new_values = [], [], gtsam.Values()
+        return result
+
+    def _drop_pending(self, handle: int, cause: str) -> Rejection:
+        r = Rejection(self.describe_factor(handle), cause, handle=handle)
+        self._pending.remove(handle)
+        del self._factors[handle]
+        self._names.pop(handle, None)
+        return r
+
+    def _drop_new_value(self, key: int, cause: str) -> Rejection:
+        r = Rejection(f"value {gtsam.DefaultKeyFormatter(key)} ({self._types[key]})", cause, key=key)
+        self._new_values.erase(key)
+        del self._types[key]
+        return r
+
+    def _reject_missing_keys(self) -> list[Rejection]:
+        out = []
+        for h in list(self._pending):
+            missing = [k for k in self._factors[h].keys() if k not in self._types]
+            if missing:
+                names = ",".join(gtsam.DefaultKeyFormatter(k) for k in missing)
+                out.append(self._drop_pending(h, f"missing key {names}: no value; call add_value first"))
+        return out + self._reject_unused_values()
+
+    def _reject_unused_values(self) -> list[Rejection]:
+        """New values no buffered factor constrains (sent factors cannot name them) would be singular."""
+        used = {k for h in self._pending for k in self._factors[h].keys()}
+        return [
+            self._drop_new_value(k, "no factor constrains it")
+            for k in list(self._new_values.keys())
+            if k not in used
+        ]
+
+    def _rollback(self) -> None:
+        """iSAM2 threw mid-update (it is half-changed): rebuild it from the factors it held before."""
+        theta = self._isam.getLinearizationPoint()
+        old = gtsam.Values()
+        for k in theta.keys():
+            if k in self._types and not self._new_values.exists(k):
+                old.insert(k, _at(theta, k, self._types[k]))
+        sent = [h for h in self._index if h in self._factors]  # removals of this update still apply
+        graph = gtsam.NonlinearFactorGraph()
+        for h in sent:
+            graph.add(self._factors[h])
+        self._isam = gtsam.ISAM2(self._params)
+        res = self._isam.update(graph, old)
+        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
+        self._to_remove = []
+        self._estimate = None
+        self._sent_graph, self._sent_values = graph, old
+
+    def _retry_with_qr(self, error: Exception) -> gtsam.ISAM2Result | None:
+        """An indeterminate system under Cholesky may only be poorly conditioned: QR (slower, but
+        without squaring the condition number) solves it; the backend keeps QR from then on."""
+        if "ndeterminate" not in str(error) or self._params.getFactorization() == "QR":
+            return None
+        near = re.search(r"variable\s+(\d+)", str(error))
+        if near is None or self._new_values.exists(int(near.group(1))) or not self._new_values_determined():
+            return None  # a new variable is under-constrained: QR would hide it (it does not check rank)
+        self._params.setFactorization("QR")
+        sent = list(self._index)
+        self._isam = gtsam.ISAM2(self._params)
+        res = self._isam.update(self._sent_graph, self._sent_values)
+        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
+        try:
+            result = self._send()
+        except Exception:  # noqa: BLE001 - not a conditioning problem: back to Cholesky, blame factors
+            self._params.setFactorization("CHOLESKY")
+            self._rollback()
+            return None
+        log.warning(
+            "iSAM2 (Cholesky) failed: %s; solved with QR factorization, which the graph uses from now on",
+            _first_line(error),
+        )
+        return result
+
+    def _new_values_determined(self) -> bool:
+        """Does each new variable get full-rank information from the buffered factors on it alone?"""
+        values = gtsam.Values(self._sent_values)
+        values.insert(self._new_values)
+        for k in self._new_values.keys():
+            info = None
+            for h in self._pending:
+                f = self._factors[h]
+                keys = list(f.keys())
+                if k not in keys:
+                    continue
+                try:
+                    A, _ = f.linearize(values).jacobian()
+                except Exception:  # noqa: BLE001 - a factor that cannot linearize is for _blame
+                    return False
+                dims = [_dim(values, kk, self._types[kk]) for kk in keys]
+                start = sum(dims[: keys.index(k)])
+                Ak = np.asarray(A)[:, start : start + dims[keys.index(k)]]
+                info = Ak.T @ Ak if info is None else info + Ak.T @ Ak
+            if info is None:
+                return False
+            ev = np.linalg.eigvalsh(info)
+            if ev[0] <= 1e-9 * max(ev[-1], 1e-300):
+                return False
+        return True
+
+    def _blame(self, error: Exception) -> list[Rejection]:
+        """Drop the buffered culprits of a failed update (iSAM2 was rolled back)."""
+        cause = _first_line(error)
+        graph = self._sent_graph
+        # blame: each buffered factor whose removal alone makes the system solvable
+        values = gtsam.Values(self._sent_values)
+        values.insert(self._new_values)
+        blamed = [h for h in self._pending if self._solvable(graph, values, skip=h)]
+        if blamed and (len(blamed) < len(self._pending) or len(self._pending) == 1):
+            out = [self._drop_pending(h, cause) for h in blamed]
+            out += self._reject_unused_values()
+            if self._solvable(graph, values, skip=None):
+                return out
+        else:
+            out = []
+        # no single culprit (or several together): the whole batch goes
+        for h in list(self._pending):
+            out.append(self._drop_pending(h, cause + _BATCH))
+        for k in list(self._new_values.keys()):
+            out.append(self._drop_new_value(k, "rolled back with its batch" + _BATCH))
+        return out
+
+    def _solvable(self, sent: gtsam.NonlinearFactorGraph, values: gtsam.Values, skip: int | None) -> bool:
+        graph = gtsam.NonlinearFactorGraph(sent)
+        keys = set(values.keys())
+        for h in self._pending:
+            if h != skip:
+                graph.add(self._factors[h])
+        used = {k for i in range(graph.size()) if graph.at(i) is not None for k in graph.at(i).keys()}
+        vals = gtsam.Values()
+        for k in keys & used:
+            vals.insert(k, _at(values, k, self._types[k]))
+        try:
+            graph.linearize(vals).eliminateMultifrontal()
+            return True
+        except Exception:  # noqa: BLE001
+            return False
 
     def refine_batch(self, max_iterations: int | None = None) -> float:
         """Levenberg-Marquardt over the whole graph from the current estimate, then re-seed iSAM2.
 
         Pending factors and values are included. Handles stay valid. Returns the final error.
         """
+        rejected = self._reject_missing_keys()
         handles = sorted(self._factors)
         graph = gtsam.NonlinearFactorGraph()
         for h in handles:
-            self._check_keys(self._factors[h])
             graph.add(self._factors[h])
         initial = gtsam.Values(self.values())
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations or self._batch_max_iterations)
-        result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        try:
+            result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        except RuntimeError as e:  # nothing was changed: the iSAM2 state is still the last good one
+            raise BackendError(f"batch refinement failed, graph unchanged: {_first_line(e)}") from e
         error = float(graph.error(result))
         log.debug("batch LM: error %.6g -> %.6g", graph.error(initial), error)
         self._isam = gtsam.ISAM2(self._params)
@@ -146,6 +379,8 @@ class Backend:
         self._index = {h: int(i) for h, i in zip(handles, res.getNewFactorsIndices())}
         self._pending, self._to_remove, self._new_values = [], [], gtsam.Values()
         self._estimate = None
+        if rejected:
+            raise RejectedError(rejected)
         return error
 
     # -- reading ----------------------------------------------------------------------------

@@ -16,7 +16,7 @@ def gauge_prior_noise(cfg: GraphConfig) -> gtsam.noiseModel.Diagonal:
 
 
 def flow_kwargs(cfg: GraphConfig) -> dict:
-    """Keyword arguments of :func:`factors.make_flow_factor` taken from the config."""
+    """Keyword arguments of :func:`gsslam.factors.make_flow_factor` taken from the config."""
     return {
         "sigma_px": cfg.flow_sigma_px,
         "inlier_prior": cfg.flow_inlier_prior,

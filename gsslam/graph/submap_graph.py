@@ -5,9 +5,9 @@ Variables: one ``gtsam.Similarity3`` per submap, ``S(i) = T_world_local_i``. A k
 
 Per new submap i (its frame 0 is frame K of submap i-1, ``T_local_cam[0] = I``):
 
-- a rigid alignment ``S(i-1)^-1 S(i) ~ T_local(i-1, K)`` (:mod:`factors.submap_alignment`),
-- a scale factor ``s_i = median D(i-1, K) / median D(i, 0)`` (:mod:`factors.scale`),
-- adjacency points of the shared frame ``S(i-1)(X(i-1, K)) - S(i)(X(i, 0))`` (:mod:`factors.points`).
+- a rigid alignment ``S(i-1)^-1 S(i) ~ T_local(i-1, K)`` (:mod:`gsslam.factors.submap_alignment`),
+- a scale factor ``s_i = median D(i-1, K) / median D(i, 0)`` (:mod:`gsslam.factors.scale`),
+- adjacency points of the shared frame ``S(i-1)(X(i-1, K)) - S(i)(X(i, 0))`` (:mod:`gsslam.factors.points`).
 
 Gauge: the first submap gets a Sim(3) prior fixing pose AND scale. With ``monocular=False`` (RGB-D,
 metric point maps) every submap also gets a strong prior keeping its scale at 1.
@@ -23,9 +23,12 @@ import logging
 
 import numpy as np
 
-from factors import (
+from gsslam.config import GraphConfig
+from gsslam.errors import GsslamError
+from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
+    make_keyframe_pose_factor,
     make_point_factor,
     make_scale_factor,
     make_scale_prior_factor,
@@ -34,8 +37,6 @@ from factors import (
     to_gtsam,
     to_matrix,
 )
-from gsslam.config import GraphConfig
-from gsslam.errors import GsslamError
 from gsslam.graph.backend import Backend
 from gsslam.graph.keys import submap_key
 from gsslam.graph.noise import flow_kwargs, gauge_prior_noise
@@ -214,6 +215,31 @@ class SubmapGraph:
             return None
         factor = make_depth_prior_factor(submap_key(i), z[ok], depth[ok], self.cfg.depth_prior_sigma)
         return self.backend.add_factor(factor)
+
+    def keyframe_anchor(self, frame_index: int) -> tuple[int, np.ndarray]:
+        """``(key, T_local_cam)``: the submap variable a keyframe's pose is expressed on, and its fixed
+        local pose [4, 4] (rigid, submap units): ``T_world_cam = rigid(S(key) T_local_cam)``."""
+        i, j = self.owner(frame_index)
+        return submap_key(i), self._subs[i].T_local_cam[j].copy()
+
+    def add_keyframe_pose_prior(
+        self,
+        frame_index: int,
+        T_world_cam: np.ndarray,  # [4, 4] rigid, in this graph's world
+        rot_sigma: float,
+        trans_sigma: float,
+        name: str | None = None,
+    ) -> int:
+        """A prior on a keyframe's pose, mapped onto its submap's variable.
+
+        See :mod:`gsslam.factors.keyframe_pose`; ``name`` appears in the backend's messages.
+        """
+        key, L = self.keyframe_anchor(frame_index)
+        try:
+            factor = make_keyframe_pose_factor(key, L, T_world_cam, rot_sigma, trans_sigma, "sim3")
+        except ValueError as e:
+            raise GraphError(f"keyframe {frame_index} pose prior: {e}") from e
+        return self.backend.add_factor(factor, name or f"keyframe pose prior x{frame_index}")
 
     def remove_factor(self, handle: int) -> None:
         self.backend.remove_factors([handle])

@@ -11,3 +11,36 @@
   :mod:`~gsslam.run.manifest` (what to run), :mod:`~gsslam.run.run_metrics` (one run folder -> one row)
   and :mod:`~gsslam.run.results` (the table, pure); built-in suites in ``run/suites/``.
 """
+
+import sys
+import types
+from pathlib import Path
+
+
+class _CallablePackage(types.ModuleType):
+    """``gsslam.run(path, ...)``: the package itself runs a dataset folder (see :meth:`__call__`)."""
+
+    def __call__(
+        self,
+        path,
+        dataset: str = "tum",
+        out="gsslam_out",
+        config=None,
+        mode: str | None = None,
+        overrides=(),
+        max_frames: int | None = None,
+        **dataset_kwargs,
+    ):
+        """Run the dataset folder ``path`` (loader ``dataset``) and write the outputs to ``out``.
+
+        ``config``: a YAML path or None, with dotted ``overrides`` and ``mode``. Returns the
+        :class:`~gsslam.run.sequence.RunResult` (``.metrics``: what ``metrics.json`` holds).
+        """
+        from gsslam.config import load_config
+        from gsslam.run.sequence import run_sequence
+
+        cfg = load_config(config, list(overrides), mode=mode)
+        return run_sequence(Path(path), dataset, cfg, Path(out), max_frames, False, **dataset_kwargs)
+
+
+sys.modules[__name__].__class__ = _CallablePackage

@@ -127,6 +127,8 @@ def write_outputs(
     ate_bb, _ = (
         ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch and joined else (None, None)
     )
+    online = getattr(pipe, "online_poses", None)  # the pose process() returned for each frame
+    ate_on, _ = ate_metrics(gt, trajectory_of(pipe, online), align) if online and joined else (None, None)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     peak_mb = peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
     metrics = {
@@ -145,6 +147,8 @@ def write_outputs(
         "ate": ate,
         "ate_keyframes": ate_kf,
         "ate_before_batch": ate_bb,
+        "ate_online": ate_on,
+        "frames_posed_online": len(online or {}),
         "ate_per_chain": None if joined else ate_per_chain(pipe, gt, poses, align),
         "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
         "interrupted": interrupted,

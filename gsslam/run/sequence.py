@@ -81,6 +81,7 @@ class RunResult:
             ("ate", "ATE RMSE (all frames)"),
             ("ate_keyframes", "ATE RMSE (keyframes)"),
             ("ate_before_batch", "ATE RMSE (before batch)"),
+            ("ate_online", "ATE RMSE (online, as frames arrived)"),
         ):
             if m.get(key):
                 rows.append(

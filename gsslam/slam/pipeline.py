@@ -86,6 +86,7 @@ class Pipeline:
         self.lost = 0
         self.last_good = None
         self.last_pose: np.ndarray = np.eye(4)
+        self.online_poses: dict[int, np.ndarray] = {}  # frame -> pose returned by process (as it arrived)
         self.n_frames = 0
         self.n_pose_outliers = 0  # non-keyframe poses replaced by interpolation (frame_poses)
         self.last_good: Frame | None = None  # last non-keyframe tracked successfully
@@ -96,6 +97,11 @@ class Pipeline:
 
             self.map_stage = MapStage(cfg.mapper, intrinsics)
         self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
+        self.plugins: list = []  # gsslam.slam.plugins.Plugin: user factors into the running graph
+
+    def add_plugin(self, plugin) -> None:
+        """Call ``plugin`` (a :class:`gsslam.slam.plugins.Plugin`) on new keyframes, submaps and the end."""
+        self.plugins.append(plugin)
 
     @property
     def n_flow_factors(self) -> int:
@@ -104,7 +110,14 @@ class Pipeline:
 
     # ---- per frame ---------------------------------------------------------------------------
 
-    def process(self, frame: Frame, retry: bool = False) -> None:
+    def process(self, frame: Frame, retry: bool = False) -> np.ndarray | None:
+        """Feed one frame; returns its current pose estimate ``T_world_cam`` [4, 4] (None if it has none).
+
+        The pose is the frame's tracked pose relative to its keyframe composed with that keyframe's
+        current (optimised, where the graph has it) pose, so it is available from the second frame on
+        in RGB-D; in mono once the keyframe has a point map (its first submap). The refined trajectory
+        of :meth:`frame_poses` after :meth:`finish` stays the better one.
+        """
         if (frame.intrinsics.width, frame.intrinsics.height) != (
             self.intrinsics.width,
             self.intrinsics.height,
@@ -125,7 +138,7 @@ class Pipeline:
                 return
         if not self.window:
             self._start_chain(frame)
-            return
+            return self._remember(frame.index, self.online_poses.get(frame.index))
         flow, matches, status = self.tracker.track(frame)
         T_ref_cur = None
         if status.ok and not self.monocular:
@@ -150,21 +163,68 @@ class Pipeline:
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
-            self.process(frame, retry=True)
-            return
+            return self.process(frame, retry=True)
         if not status.ok:
             self._tracking_failure(frame, status.reason)
-            return
+            return self.online_poses.get(frame.index)  # a new chain's origin, or None
         self.lost = 0
         self.frames_since_kf += 1
+        pose = self._remember(frame.index, self._tracked_pose(matches, T_ref_cur))
         if self.selector.is_keyframe(flow, self.frames_since_kf):
             self._add_keyframe(frame)
-            return
+            if frame.index in self.keyframes:  # its submap was just encoded: the graph's pose
+                pose = self._remember(frame.index, self._pose_now(frame.index))
+            return pose
         if self.monocular:
             self.pending.append((matches, len(self.chains) - 1))
         else:
             self.relative[frame.index] = (matches.ref_index, T_ref_cur)
         self.last_good = frame
+        return pose
+
+    # ---- online poses ------------------------------------------------------------------------
+
+    def _remember(self, index: int, pose: np.ndarray | None) -> np.ndarray | None:
+        if pose is not None:
+            self.online_poses[index] = pose
+            self.last_pose = pose
+        return None if pose is None else pose.copy()
+
+    def _pose_now(self, index: int) -> np.ndarray | None:
+        """Current ``T_world_cam`` of a keyframe: the graph's estimate, else its pose as it arrived."""
+        kf = self.keyframes.get(index)
+        if kf is not None and not self.chains[kf.chain].failed:
+            chain = self.chains[kf.chain]
+            try:
+                return chain.T_world_chain @ chain.graph.keyframe_pose(index)
+            except GsslamError:
+                pass
+        return self.online_poses.get(index)
+
+    def _tracked_pose(self, matches: FrameMatches, T_ref_cur: np.ndarray | None) -> np.ndarray | None:
+        """The frame's pose from its match to the reference keyframe (RGB-D: PnP already solved)."""
+        ref = matches.ref_index
+        T_world_ref = self._pose_now(ref)
+        if T_world_ref is None:
+            return None
+        if T_ref_cur is None:  # mono: PnP against the keyframe's point-map depth, once it has one
+            kf = self.keyframes.get(ref)
+            if kf is None:
+                return None
+            pc = self.cfg.pipeline
+            intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
+            depth = sample_depth(kf.depth, intr, self.intrinsics, matches.uv_ref)
+            T_ref_cur, _ = solve_relative_pose(
+                matches,
+                depth,
+                self.intrinsics.K,
+                pc.min_pnp_inliers,
+                pc.min_pnp_inlier_ratio,
+                pc.pnp_threshold_px,
+            )
+            if T_ref_cur is None:
+                return None
+        return T_world_ref @ self._to_world_units(ref, T_ref_cur)
 
     def _time_gap(self, frame: Frame) -> float | None:
         """Seconds since the previous frame when more than ``pipeline.max_time_gap_s``, else None."""
@@ -192,6 +252,7 @@ class Pipeline:
 
         T = self.current_pose_estimate()
         self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T, in_world=not self.chains))
+        self.online_poses[frame.index] = T.copy()
         self.window = [frame]
         self.prev_frames = []
         self.keyframe_order.append(frame.index)
@@ -246,15 +307,19 @@ class Pipeline:
             flows = self.cross_flow.add(
                 chain, self.chains, self.keyframes, self.prev_frames, frames, self.map_stage is not None
             )
-            chain.graph.update()
+            self._update_graph(chain, sid, frames[-1].index)
+            if self.plugins:
+                self._call_plugins(chain, cid, "keyframe", [dict(frame_index=i) for i in added])
+                self._call_plugins(chain, cid, "submap", [dict(submap=sid, frame_index=frames[-1].index)])
+                self._update_graph(chain, sid, frames[-1].index)
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
             self._relocalize(chain, cid, sid, frames[-1].index)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
             # was and continue with a new chain that starts at this submap's last keyframe.
-            self.events.append(Event(frames[-1].index, "graph", str(e).splitlines()[0]))
-            log.warning("graph update failed, starting a new chain: %s", str(e).splitlines()[0])
+            self.events.append(Event(frames[-1].index, "graph", str(e)))
+            log.warning("graph update failed, starting a new chain: %s", e)
             for idx in added:
                 self.keyframes.pop(idx, None)
             if chain.encodings and chain.encodings[-1] is enc:
@@ -268,6 +333,38 @@ class Pipeline:
             self._map_submap(chain, cid, sid, enc, frames, added, flows)
         self.prev_frames = frames
         self.window = [frames[-1]]
+
+    def _update_graph(self, chain: Chain, sid: int, frame_index: int) -> None:
+        """One iSAM2 update; factors the backend rejected (and rolled back) are reported as events.
+
+        Raises only when the new submap itself was rejected (then the caller starts a new chain).
+        """
+        from gsslam.graph.backend import RejectedError
+        from gsslam.graph.keys import submap_key
+
+        try:
+            chain.graph.update()
+        except RejectedError as e:
+            self.events.append(Event(frame_index, "rejected", str(e)))
+            if not chain.graph.backend.has_value(submap_key(sid)):
+                raise
+            log.warning("frame %d: %s", frame_index, e)
+
+    def _call_plugins(self, chain: Chain, cid: int, kind: str, calls: list[dict]) -> None:
+        from gsslam.slam.plugins import GraphEvent
+
+        for kw in calls:
+            idx = kw.get("frame_index")
+            ev = GraphEvent(
+                kind, cid, chain.graph, chain.T_world_chain, timestamp=self.timestamps.get(idx), **kw
+            )
+            for plugin in self.plugins:
+                try:
+                    getattr(plugin, f"on_{kind}")(ev)
+                except Exception as e:  # noqa: BLE001 - user code must not lose the run
+                    where = -1 if idx is None else idx
+                    self.events.append(Event(where, "plugin", f"{type(plugin).__name__}.on_{kind}: {e!r}"))
+                    log.warning("plugin %s.on_%s failed: %r", type(plugin).__name__, kind, e)
 
     def _relocalize(self, chain: Chain, cid: int, sid: int, frame_index: int) -> None:
         """A chain not yet in the world frame: try to place it against an earlier chain's submaps."""
@@ -307,6 +404,16 @@ class Pipeline:
     def finish(self) -> None:
         """Encode the tail, batch-refine every chain's graph."""
         self.close_chain()
+        if self.plugins:
+            from gsslam.graph.backend import RejectedError
+
+            for cid, chain in enumerate(self.chains):
+                if chain.encodings and not chain.failed:
+                    self._call_plugins(chain, cid, "end", [{}])
+                    try:
+                        chain.graph.update()
+                    except RejectedError as e:
+                        self.events.append(Event(-1, "rejected", str(e)))
         if self.cfg.graph.final_batch_refinement:
             for chain in self.chains:
                 if chain.encodings and not chain.failed:
@@ -392,7 +499,8 @@ class Pipeline:
         return T
 
     def current_pose_estimate(self) -> np.ndarray:
-        """Best guess of the latest camera pose (where a new chain is placed)."""
+        """Best guess of the latest camera pose: the last pose :meth:`process` returned (or the latest
+        submap's last keyframe); a new chain is placed there."""
         return self.last_pose.copy()
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import S
 
-from factors import (
+from gsslam.factors import (
     FactorInputError,
     make_depth_prior_factor,
     make_flow_factor,

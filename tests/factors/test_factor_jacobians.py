@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import S
 
-from factors import (
+from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
+    make_keyframe_pose_factor,
     make_point_factor,
     make_scale_factor,
     make_scale_prior_factor,
@@ -61,7 +62,7 @@ def _flow_case(rng, group, offsets):
     La = _rigid(rng) if offsets else np.eye(4)
     Lb = _rigid(rng) if offsets else np.eye(4)
     # camera b = camera a moved a little, so the points stay visible
-    from factors import to_gtsam, to_matrix
+    from gsslam.factors import to_gtsam, to_matrix
 
     Ma = to_matrix(Ta) @ La
     delta = gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-0.1, 0.1, 3)), rng.uniform(-0.3, 0.3, 3)).matrix()
@@ -92,7 +93,7 @@ def test_flow_jacobians(group, offsets):
 @pytest.mark.parametrize("group", GROUPS)
 def test_flow_robust_jacobian_is_irls_weighted(group):
     """With robust weights, rows are the plain Jacobian scaled by sqrt(weight) of the current error."""
-    from factors import mixture_weights
+    from gsslam.factors import mixture_weights
 
     rng = np.random.default_rng(4)
     values, uv, d, uv_t, K, _, _ = _flow_case(rng, group, False)
@@ -118,3 +119,24 @@ def test_scale_factors_jacobians():
     _assert_jacobians(make_scale_prior_factor(S(1), 1.2, 0.01), values)
     z = rng.uniform(1, 3, 30)
     _assert_jacobians(make_depth_prior_factor(S(0), z, z * rng.uniform(0.8, 1.2, 30), 0.05), values)
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_keyframe_pose_jacobians(group):
+    rng = np.random.default_rng(7)
+    f = make_keyframe_pose_factor(S(0), _rigid(rng), _rigid(rng), 0.01, 0.02, group)
+    _assert_jacobians(f, _values(rng, group, n=1))
+
+
+def test_keyframe_pose_residual_is_zero_at_the_measured_pose():
+    rng = np.random.default_rng(8)
+    L, T = _rigid(rng), _rigid(rng)
+    # the submap that puts the keyframe exactly at T, with scale 2.5: S = T L^-1 with t_L scaled
+    Ls = L.copy()
+    Ls[:3, 3] *= 2.5
+    S_mat = T @ np.linalg.inv(Ls)
+    value = gtsam.Similarity3(gtsam.Rot3(S_mat[:3, :3]), S_mat[:3, 3] / 2.5, 2.5)
+    v = gtsam.Values()
+    v.insert(S(0), value)
+    f = make_keyframe_pose_factor(S(0), L, T, 0.01, 0.02, "sim3")
+    np.testing.assert_allclose(f.unwhitenedError(v), np.zeros(6), atol=1e-9)

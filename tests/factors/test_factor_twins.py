@@ -6,7 +6,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, S
 
-from factors import make_flow_factor, make_scale_factor, make_submap_alignment_factor, to_matrix
+from gsslam.factors import make_flow_factor, make_scale_factor, make_submap_alignment_factor, to_matrix
 from helpers.factors import analytic_jacobians, random_value
 
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from factors import median_depth_ratio
-from factors.errors import FactorInputError
+from gsslam.factors import median_depth_ratio
+from gsslam.factors.errors import FactorInputError
 
 
 def _two_layer_depth(rng, h=60, w=80):

@@ -86,7 +86,7 @@ def test_rgbd_keeps_metric_scale():
 def _true_values(g: SubmapGraph, encs):
     import gtsam
 
-    from factors import to_gtsam
+    from gsslam.factors import to_gtsam
 
     v = gtsam.Values()
     T0_inv = np.linalg.inv(true_pose(0, len(encs) * 6))

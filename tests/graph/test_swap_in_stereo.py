@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors import make_point_factor
+from gsslam.factors import make_point_factor
 from gsslam.graph.backend import Backend
 from gsslam.graph.keys import keyframe_key, user_key
 

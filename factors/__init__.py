@@ -10,6 +10,7 @@ from factors.depth_prior import make_depth_prior_factor
 from factors.errors import FactorInputError
 from factors.flow import make_flow_factor, mixture_weights
 from factors.points import make_point_factor
+from factors.registration import make_registration_factor
 from factors.scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
 from factors.submap_alignment import make_submap_alignment_factor
 
@@ -18,6 +19,7 @@ __all__ = [
     "make_depth_prior_factor",
     "make_flow_factor",
     "make_point_factor",
+    "make_registration_factor",
     "make_scale_factor",
     "make_scale_prior_factor",
     "make_submap_alignment_factor",

@@ -40,6 +40,7 @@ from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import MapperError, make_keyframe, resize, resolve_device, torch_threads
 from gsslam.mapping.pose_refine import refine_pose
 from gsslam.mapping.rasterize import RenderOutput, resolve_backend
+from gsslam.mapping.registration import Registration, register
 from gsslam.mapping.seeding import seed_gaussians
 from gsslam.mapping.state import MapState, refined_poses, render_keyframe, render_pose
 from gsslam.mapping.window import optimize_window
@@ -141,6 +142,24 @@ class GaussianMapper:
         See :func:`gsslam.mapping.pose_refine.refine_pose`.
         """
         return refine_pose(self.map, self.map.keyframe(frame_index), iterations)
+
+    def register(
+        self,
+        frame: Frame,
+        T_world_cam: np.ndarray,  # [4, 4] SE(3) or Sim(3): where the graph puts the frame now
+        points_cam: np.ndarray | None = None,  # [h, w, 3] in submap units (NaN unknown)
+        confidence: np.ndarray | None = None,  # [h, w] in [0, 1]
+    ) -> Registration | None:
+        """Register a frame that is not (yet) in the map against it; None where the map cannot tell.
+
+        See :func:`gsslam.mapping.registration.register`. The map and its keyframes are unchanged.
+        """
+        if not len(self.map.model):
+            return None
+        size = (self.intrinsics.width, self.intrinsics.height)
+        kf = make_keyframe(self.cfg, frame, T_world_cam, -1, size, self.device, points_cam, confidence)
+        with torch_threads(self.cfg.num_threads):
+            return register(self.map, kf, self.cfg.registration_iterations)
 
     def add_flow(
         self,

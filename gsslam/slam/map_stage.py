@@ -20,13 +20,17 @@ Submap ids are per chain in the graphs; the mapper gets one global id per ``(cha
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from gsslam.config import MapperConfig
-from gsslam.geometry import sim3_scale
+from gsslam.geometry import sim3_scale, split_sim3
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
+
+if TYPE_CHECKING:
+    from gsslam.mapping.registration import Registration
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +47,9 @@ class MapStage:
         self._gid: dict[tuple[int, int], int] = {}  # (chain, submap) -> mapper submap id
         self._anchor: dict[int, tuple[int, int, int]] = {}  # keyframe -> (chain, submap, position)
         self.n_depth_priors = 0
+        self.n_registrations = 0  # keyframes registered against the map and sent to the graph
+        self.n_registrations_gated = 0  # registered, but the map could not tell their pose
+        self.pending: list[tuple[int, Registration]] = []  # (position in the new submap, registration)
         self.seconds = 0.0
         self.iterations = 0
         self.final_iterations = 0
@@ -93,6 +100,9 @@ class MapStage:
         gid = self.global_id(cid, sid)
         self.follow_graph(chains)  # records the new submap's transform before its Gaussians exist
         by_index = {f.index: f for f in frames}
+        self.pending = []
+        if self.cfg.registration_feedback:
+            self.pending = self._register(chains, cid, sid, enc, by_index, new_keyframes)
         for idx in new_keyframes:
             pos = list(enc.frame_indices).index(idx)
             self._anchor[idx] = (cid, sid, pos)
@@ -142,6 +152,40 @@ class MapStage:
         r = cv2.resize(rendered, (w, h), interpolation=cv2.INTER_NEAREST)
         return np.where(np.isfinite(r) & (r > 0), r, pointmap_depth).astype(np.float32)
 
+    def _register(
+        self, chains, cid: int, sid: int, enc: SubmapEncoding, by_index: dict, new_keyframes: list[int]
+    ):
+        """Register the new keyframes (at the graph's pose) against the map as it was before them."""
+        out = []
+        for idx in new_keyframes:
+            pos = list(enc.frame_indices).index(idx)
+            T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
+            reg = self.mapper.register(by_index[idx], T, enc.points_cam[pos], enc.confidence[pos])
+            if reg is None:
+                self.n_registrations_gated += 1
+            else:
+                out.append((pos, reg))
+        return out
+
+    def send_registrations(self, chain, sid: int) -> int:
+        """The pending registrations as one factor on submap ``sid`` of ``chain``; returns how many."""
+        if not self.pending:
+            return 0
+        R_c, t_c, c = split_sim3(np.linalg.inv(chain.T_world_chain))  # world -> chain (scale c)
+        T, info = [], []
+        D = np.diag([1.0, 1.0, 1.0] + [1.0 / c] * 3)  # chain translation = c x world translation
+        for _, reg in self.pending:
+            M = np.eye(4)
+            M[:3, :3] = R_c @ reg.T_world_cam[:3, :3]
+            M[:3, 3] = c * (R_c @ reg.T_world_cam[:3, 3]) + t_c
+            T.append(M)
+            info.append(D @ reg.information @ D)
+        chain.graph.add_registration(sid, [p for p, _ in self.pending], np.stack(T), np.stack(info))
+        n = len(self.pending)
+        self.n_registrations += n
+        self.pending = []
+        return n
+
     def depth_priors(self, graph, indices: list[int], n_points: int) -> int:
         """Rendered depths of keyframes ``indices`` as depth-prior factors in ``graph``; returns how many."""
         added = 0
@@ -168,6 +212,8 @@ class MapStage:
             "final_pose_moved_mean": self.joint_stats.get("pose_moved_mean"),
             "final_pose_moved_max": self.joint_stats.get("pose_moved_max"),
             "depth_prior_factors": self.n_depth_priors,
+            "registration_factors": self.n_registrations,
+            "registrations_gated": self.n_registrations_gated,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,
             "rasterizer_backend": self.mapper.rasterizer_backend,

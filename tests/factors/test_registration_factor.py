@@ -1,4 +1,4 @@
-"""Registration factor: Jacobians against numerical derivatives, and it moves the graph to the measured pose."""
+"""Registration factor: Jacobians against numerical derivatives; it moves the graph to the measured pose."""
 
 from __future__ import annotations
 
@@ -12,9 +12,8 @@ from helpers.factors import analytic_jacobians, numeric_jacobians, random_value
 
 
 def _rigid(rng, n):
-    return np.stack(
-        [gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-1, 1, 3)), rng.uniform(-1, 1, 3)).matrix() for _ in range(n)]
-    )
+    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-1, 1, 3)), rng.uniform(-1, 1, 3)) for _ in range(n)]
+    return np.stack([p.matrix() for p in poses])
 
 
 def _info(rng, n):

@@ -102,6 +102,19 @@ def test_depth_feedback_adds_priors_that_move_the_estimate(bundled_tum, mapped_r
     assert m["ate"]["rmse_m"] < 0.02
 
 
+def test_registration_feedback_adds_factors_that_move_the_estimate(bundled_tum, mapped_run, tmp_path):
+    out_off, m_off = mapped_run
+    assert m_off["mapper"]["registration_factors"] == 0  # off by default
+    m = _run(bundled_tum, tmp_path, ["mapper.registration_feedback=true"])
+    mp = m["mapper"]
+    assert mp["registration_factors"] >= 2
+    assert mp["registration_factors"] + mp["registrations_gated"] <= mp["keyframes"]
+    off, on = read_tum(out_off / "keyframes.tum"), read_tum(tmp_path / "keyframes.tum")
+    assert len(off) == len(on)
+    assert np.abs(off.positions - on.positions).max() > 1e-6  # the graph took them
+    assert m["ate"]["rmse_m"] < 0.02
+
+
 def test_mapper_disabled_leaves_no_map(bundled_tum, tmp_path):
     ds = open_dataset("tum", bundled_tum)
     cfg = load_config(None, ["mapper.enabled=false", "loop.enabled=false"], mode="rgbd")

@@ -246,10 +246,15 @@ class GaussianMapper:
         W, H = self.full_intrinsics.width, self.full_intrinsics.height
         return resize(d.cpu().numpy().astype(np.float32), W, H, nearest=True)
 
-    def depth_feedback(self, frame_index: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``n_points`` well-covered pixels of a keyframe: (uv [N, 2] full-res px, depth [N] world)."""
-        out = self.render_keyframe(frame_index)
-        ok = (out.alpha > 0.95) & (out.depth > 0)
+    def depth_feedback(
+        self, frame_index: int, n_points: int, T_world_cam: np.ndarray | None = None, min_alpha: float = 0.95
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Up to ``n_points`` well-covered pixels of a keyframe: (uv [N, 2] full-res px, depth [N] world).
+
+        With ``T_world_cam`` [4, 4] the map is rendered from that pose instead (a frame not in the map).
+        """
+        out = self.render_keyframe(frame_index) if T_world_cam is None else self.render_pose(T_world_cam)
+        ok = (out.alpha > min_alpha) & (out.depth > 0)
         vv, uu = (a.cpu().numpy() for a in torch.nonzero(ok, as_tuple=True))
         if len(vv) > n_points:
             pick = self.map.rng.choice(len(vv), size=n_points, replace=False)

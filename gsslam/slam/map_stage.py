@@ -11,8 +11,11 @@ Per new submap (after the graph update and loop closure):
    switches are in the mapper config and are off by default, see docs/mapping.md):
    :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
    submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);
-   :meth:`MapStage.depth_priors` adds rendered depths of the new keyframes to the graph as depth-prior
-   factors (``mapper.depth_feedback``).
+   :meth:`MapStage.depth_priors` adds depths rendered at the new keyframes' graph poses (from the map
+   of the earlier submaps, alpha > 0.99, before the keyframes add their own Gaussians) to the graph as
+   depth-prior factors (``mapper.depth_feedback``); with ``mapper.registration_feedback`` the new
+   keyframes are registered against that same map and sent as registration factors
+   (:meth:`MapStage.send_registrations`).
 
 Submap ids are per chain in the graphs; the mapper gets one global id per ``(chain, submap)``.
 """
@@ -50,6 +53,7 @@ class MapStage:
         self.n_registrations = 0  # keyframes registered against the map and sent to the graph
         self.n_registrations_gated = 0  # registered, but the map could not tell their pose
         self.pending: list[tuple[int, Registration]] = []  # (position in the new submap, registration)
+        self.pending_depth: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe -> (uv, depth)
         self.seconds = 0.0
         self.iterations = 0
         self.final_iterations = 0
@@ -101,6 +105,16 @@ class MapStage:
         self.follow_graph(chains)  # records the new submap's transform before its Gaussians exist
         by_index = {f.index: f for f in frames}
         self.pending = []
+        self.pending_depth = {}
+        if self.cfg.depth_feedback and len(self.mapper.model):
+            # rendered before the keyframes seed their own Gaussians: the depth is the earlier submaps'
+            # evidence, not the keyframe's own point map handed back (docs/results.md, "Feedback")
+            for idx in new_keyframes:
+                pos = list(enc.frame_indices).index(idx)
+                T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
+                self.pending_depth[idx] = self.mapper.depth_feedback(
+                    idx, self.cfg.depth_feedback_points, T_world_cam=T, min_alpha=0.99
+                )
         if self.cfg.registration_feedback:
             self.pending = self._register(chains, cid, sid, enc, by_index, new_keyframes)
         for idx in new_keyframes:
@@ -190,9 +204,9 @@ class MapStage:
         """Rendered depths of keyframes ``indices`` as depth-prior factors in ``graph``; returns how many."""
         added = 0
         for idx in indices:
-            if idx not in self._anchor:
+            if idx not in self.pending_depth:
                 continue
-            uv, depth = self.mapper.depth_feedback(idx, n_points)
+            uv, depth = self.pending_depth.pop(idx)
             if len(uv) >= 3 and graph.add_depth_prior(idx, uv, depth, self.intrinsics.K) is not None:
                 added += 1
         self.n_depth_priors += added

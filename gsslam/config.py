@@ -144,11 +144,11 @@ class MapperConfig:
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
     registration_feedback: bool = False  # new keyframes registered against the map -> graph factors (docs)
     registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
-    registration_min_coverage: float = 0.6  # fraction of the keyframe the map must cover (alpha > 0.9)
+    registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
     registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum
     registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2
     registration_max_condition: float = 1e4  # largest condition number of that information
-    registration_information_scale: float = 2e-4  # discount for correlated pixel and map errors (docs)
+    registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
     num_threads: int = (
         1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
     )

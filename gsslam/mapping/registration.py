@@ -55,7 +55,7 @@ def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.T
         out = render(state, kf.T_cam_world(state.device))
     finally:
         kf.delta = saved
-    rc = (out.color - kf.image)[mask].reshape(-1)
+    rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
     ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
     return rc, ld - ld.median()
 

@@ -155,16 +155,21 @@ class MapStage:
     def shared_depth(self, chains, index: int, pointmap_depth: np.ndarray) -> np.ndarray:
         """Rendered depth of keyframe ``index`` in its owner submap's units at ``pointmap_depth``'s size.
 
-        Pixels the map does not cover keep ``pointmap_depth`` [h, w] (the encoder's own depth).
+        Only pixels where the encoder had a depth and the map is opaque (alpha > 0.99) take the rendered
+        one; the others keep ``pointmap_depth`` [h, w]. Where the point map had none (mono: ~55 % of the
+        shared frame on teddy), the map's Gaussians were inpainted and their depth was 68 % off (median,
+        docs/results.md "Feedback"): handing it on made the next submap worse.
         """
         if index not in self._anchor:
             return pointmap_depth
         c, s, _ = self._anchor[index]
         scale = sim3_scale(self._submap_pose(chains[c], s))
-        rendered = self.mapper.rendered_depth(index) / scale  # [H, W] world -> submap units
+        out = self.mapper.render_keyframe(index)
         h, w = pointmap_depth.shape
-        r = cv2.resize(rendered, (w, h), interpolation=cv2.INTER_NEAREST)
-        return np.where(np.isfinite(r) & (r > 0), r, pointmap_depth).astype(np.float32)
+        r = cv2.resize(out.depth.cpu().numpy(), (w, h), interpolation=cv2.INTER_NEAREST) / scale  # submap u.
+        a = cv2.resize(out.alpha.cpu().numpy(), (w, h), interpolation=cv2.INTER_NEAREST)
+        take = (a > 0.99) & np.isfinite(r) & (r > 0) & np.isfinite(pointmap_depth) & (pointmap_depth > 0)
+        return np.where(take, r, pointmap_depth).astype(np.float32)
 
     def _register(
         self, chains, cid: int, sid: int, enc: SubmapEncoding, by_index: dict, new_keyframes: list[int]

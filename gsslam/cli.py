@@ -270,7 +270,8 @@ def _run_batch(
 @app.command("batch")
 def batch_cmd(
     manifest: Annotated[
-        Optional[str], typer.Argument(help="Manifest YAML, or a built-in suite name (quick, standard, long, feedback).")
+        Optional[str],
+        typer.Argument(help="Manifest YAML, or a built-in suite: quick, standard, long, feedback."),
     ] = None,
     jobs: Annotated[
         int, typer.Option(help="Runs at once (> 1 runs on a local Ray; needs gsslam\\[batch]).")

@@ -205,8 +205,9 @@ class MapStage:
         self.pending = []
         return n
 
-    def depth_priors(self, graph, indices: list[int], n_points: int) -> int:
-        """Rendered depths of keyframes ``indices`` as depth-prior factors in ``graph``; returns how many."""
+    def depth_priors(self, graph, indices: list[int]) -> int:
+        """Depths rendered for keyframes ``indices`` before they joined the map (:meth:`add_submap`,
+        ``mapper.depth_feedback_points`` each) as depth-prior factors in ``graph``; returns how many."""
         added = 0
         for idx in indices:
             if idx not in self.pending_depth:

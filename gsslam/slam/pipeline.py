@@ -253,7 +253,7 @@ class Pipeline:
                     chain.graph.update()
                     self.map_stage.follow_graph(self.chains)
             if self.cfg.mapper.depth_feedback and not chain.failed:
-                if self.map_stage.depth_priors(chain.graph, added, self.cfg.mapper.depth_feedback_points):
+                if self.map_stage.depth_priors(chain.graph, added):
                     chain.graph.update()
                     self.map_stage.follow_graph(self.chains)
         except GsslamError as e:

@@ -311,7 +311,8 @@ def _run_batch(
 @app.command("batch")
 def batch_cmd(
     manifest: Annotated[
-        Optional[str], typer.Argument(help="Manifest YAML, or a built-in suite name (quick, standard, long).")
+        Optional[str],
+        typer.Argument(help="Manifest YAML, or a built-in suite: quick, standard, long, feedback."),
     ] = None,
     jobs: Annotated[
         int, typer.Option(help="Runs at once (> 1 runs on a local Ray; needs gsslam\\[batch]).")
@@ -350,7 +351,7 @@ def batch_cmd(
 
 @bench_app.command("accuracy")
 def bench_accuracy(
-    suite: Annotated[str, typer.Option(help="Built-in suite: quick | standard | long.")] = "quick",
+    suite: Annotated[str, typer.Option(help="Built-in suite: quick | standard | long | feedback.")] = "quick",
     jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam\\[batch]).")] = 1,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,

@@ -152,6 +152,13 @@ class MapperConfig:
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
     pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
+    registration_feedback: bool = False  # new keyframes registered against the map -> graph factors (docs)
+    registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
+    registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
+    registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum
+    registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2
+    registration_max_condition: float = 1e4  # largest condition number of that information
+    registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
     num_threads: int = (
         1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
     )
@@ -452,6 +459,12 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.pose_min_gain": UNIT,
     "mapper.pose_init_prior": NONNEG,
     "mapper.num_threads": _ge(0),
+    "mapper.registration_iterations": _ge(1),
+    "mapper.registration_min_coverage": UNIT,
+    "mapper.registration_max_residual": POS,
+    "mapper.registration_min_information": NONNEG,
+    "mapper.registration_max_condition": _ge(1),
+    "mapper.registration_information_scale": POS,
     "loop.skip_recent": _ge(0),
     "loop.min_overlap": UNIT,
     "loop.min_score": UNIT,

@@ -30,6 +30,7 @@ from gsslam.factors import (
     make_flow_factor,
     make_keyframe_pose_factor,
     make_point_factor,
+    make_registration_factor,
     make_scale_factor,
     make_scale_prior_factor,
     make_submap_alignment_factor,
@@ -174,6 +175,22 @@ class SubmapGraph:
             weight=weight, group="sim3",
             L_a=self._subs[ia].T_local_cam[ja], L_b=self._subs[ib].T_local_cam[jb], **flow_kwargs(self.cfg),
         )  # fmt: skip
+        return self.backend.add_factor(factor)
+
+    def add_registration(
+        self, submap: int, positions: list[int], T_chain_cam: np.ndarray, information: np.ndarray
+    ) -> int:
+        """Keyframe poses registered against the map (rigid ``T_chain_cam`` [N, 4, 4], chain units,
+        ``information`` [N, 6, 6] over (phi, rho)) as one factor on the submap's variable."""
+        if not 0 <= submap < len(self._subs):
+            raise GraphError(f"registration names submap {submap} but only {len(self._subs)} submaps exist")
+        L = np.array(self._subs[submap].T_local_cam, dtype=np.float64)[list(positions)]
+        U, _, Vt = np.linalg.svd(L[:, :3, :3])
+        L[:, :3, :3] = U @ Vt
+        try:
+            factor = make_registration_factor(submap_key(submap), L, T_chain_cam, information, "sim3")
+        except ValueError as e:
+            raise GraphError(f"registration on submap {submap}: {e}") from e
         return self.backend.add_factor(factor)
 
     def add_loop(self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None) -> int:

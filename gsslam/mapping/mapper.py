@@ -40,6 +40,7 @@ from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import MapperError, make_keyframe, resize, resolve_device, torch_threads
 from gsslam.mapping.pose_refine import refine_pose
 from gsslam.mapping.rasterize import RenderOutput, resolve_backend
+from gsslam.mapping.registration import Registration, register
 from gsslam.mapping.seeding import seed_gaussians
 from gsslam.mapping.state import MapState, refined_poses, render_keyframe, render_pose
 from gsslam.mapping.window import optimize_window
@@ -142,6 +143,24 @@ class GaussianMapper:
         """
         return refine_pose(self.map, self.map.keyframe(frame_index), iterations)
 
+    def register(
+        self,
+        frame: Frame,
+        T_world_cam: np.ndarray,  # [4, 4] SE(3) or Sim(3): where the graph puts the frame now
+        points_cam: np.ndarray | None = None,  # [h, w, 3] in submap units (NaN unknown)
+        confidence: np.ndarray | None = None,  # [h, w] in [0, 1]
+    ) -> Registration | None:
+        """Register a frame that is not (yet) in the map against it; None where the map cannot tell.
+
+        See :func:`gsslam.mapping.registration.register`. The map and its keyframes are unchanged.
+        """
+        if not len(self.map.model):
+            return None
+        size = (self.intrinsics.width, self.intrinsics.height)
+        kf = make_keyframe(self.cfg, frame, T_world_cam, -1, size, self.device, points_cam, confidence)
+        with torch_threads(self.cfg.num_threads):
+            return register(self.map, kf, self.cfg.registration_iterations)
+
     def add_flow(
         self,
         frame_a_index: int,
@@ -227,10 +246,15 @@ class GaussianMapper:
         W, H = self.full_intrinsics.width, self.full_intrinsics.height
         return resize(d.cpu().numpy().astype(np.float32), W, H, nearest=True)
 
-    def depth_feedback(self, frame_index: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``n_points`` well-covered pixels of a keyframe: (uv [N, 2] full-res px, depth [N] world)."""
-        out = self.render_keyframe(frame_index)
-        ok = (out.alpha > 0.95) & (out.depth > 0)
+    def depth_feedback(
+        self, frame_index: int, n_points: int, T_world_cam: np.ndarray | None = None, min_alpha: float = 0.95
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Up to ``n_points`` well-covered pixels of a keyframe: (uv [N, 2] full-res px, depth [N] world).
+
+        With ``T_world_cam`` [4, 4] the map is rendered from that pose instead (a frame not in the map).
+        """
+        out = self.render_keyframe(frame_index) if T_world_cam is None else self.render_pose(T_world_cam)
+        ok = (out.alpha > min_alpha) & (out.depth > 0)
         vv, uu = (a.cpu().numpy() for a in torch.nonzero(ok, as_tuple=True))
         if len(vv) > n_points:
             pick = self.map.rng.choice(len(vv), size=n_points, replace=False)

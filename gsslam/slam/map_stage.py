@@ -11,8 +11,11 @@ Per new submap (after the graph update and loop closure):
    switches are in the mapper config and are off by default, see docs/mapping.md):
    :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
    submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);
-   :meth:`MapStage.depth_priors` adds rendered depths of the new keyframes to the graph as depth-prior
-   factors (``mapper.depth_feedback``).
+   :meth:`MapStage.depth_priors` adds depths rendered at the new keyframes' graph poses (from the map
+   of the earlier submaps, alpha > 0.99, before the keyframes add their own Gaussians) to the graph as
+   depth-prior factors (``mapper.depth_feedback``); with ``mapper.registration_feedback`` the new
+   keyframes are registered against that same map and sent as registration factors
+   (:meth:`MapStage.send_registrations`).
 
 Submap ids are per chain in the graphs; the mapper gets one global id per ``(chain, submap)``.
 """
@@ -20,13 +23,17 @@ Submap ids are per chain in the graphs; the mapper gets one global id per ``(cha
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from gsslam.config import MapperConfig
-from gsslam.geometry import sim3_scale
+from gsslam.geometry import sim3_scale, split_sim3
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
+
+if TYPE_CHECKING:
+    from gsslam.mapping.registration import Registration
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +50,10 @@ class MapStage:
         self._gid: dict[tuple[int, int], int] = {}  # (chain, submap) -> mapper submap id
         self._anchor: dict[int, tuple[int, int, int]] = {}  # keyframe -> (chain, submap, position)
         self.n_depth_priors = 0
+        self.n_registrations = 0  # keyframes registered against the map and sent to the graph
+        self.n_registrations_gated = 0  # registered, but the map could not tell their pose
+        self.pending: list[tuple[int, Registration]] = []  # (position in the new submap, registration)
+        self.pending_depth: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe -> (uv, depth)
         self.seconds = 0.0
         self.iterations = 0
         self.final_iterations = 0
@@ -93,6 +104,19 @@ class MapStage:
         gid = self.global_id(cid, sid)
         self.follow_graph(chains)  # records the new submap's transform before its Gaussians exist
         by_index = {f.index: f for f in frames}
+        self.pending = []
+        self.pending_depth = {}
+        if self.cfg.depth_feedback and len(self.mapper.model):
+            # rendered before the keyframes seed their own Gaussians: the depth is the earlier submaps'
+            # evidence, not the keyframe's own point map handed back (docs/results.md, "Feedback")
+            for idx in new_keyframes:
+                pos = list(enc.frame_indices).index(idx)
+                T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
+                self.pending_depth[idx] = self.mapper.depth_feedback(
+                    idx, self.cfg.depth_feedback_points, T_world_cam=T, min_alpha=0.99
+                )
+        if self.cfg.registration_feedback:
+            self.pending = self._register(chains, cid, sid, enc, by_index, new_keyframes)
         for idx in new_keyframes:
             pos = list(enc.frame_indices).index(idx)
             self._anchor[idx] = (cid, sid, pos)
@@ -131,24 +155,64 @@ class MapStage:
     def shared_depth(self, chains, index: int, pointmap_depth: np.ndarray) -> np.ndarray:
         """Rendered depth of keyframe ``index`` in its owner submap's units at ``pointmap_depth``'s size.
 
-        Pixels the map does not cover keep ``pointmap_depth`` [h, w] (the encoder's own depth).
+        Only pixels where the encoder had a depth and the map is opaque (alpha > 0.99) take the rendered
+        one; the others keep ``pointmap_depth`` [h, w]. Where the point map had none (mono: ~55 % of the
+        shared frame on teddy), the map's Gaussians were inpainted and their depth was 68 % off (median,
+        docs/results.md "Feedback"): handing it on made the next submap worse.
         """
         if index not in self._anchor:
             return pointmap_depth
         c, s, _ = self._anchor[index]
         scale = sim3_scale(self._submap_pose(chains[c], s))
-        rendered = self.mapper.rendered_depth(index) / scale  # [H, W] world -> submap units
+        out = self.mapper.render_keyframe(index)
         h, w = pointmap_depth.shape
-        r = cv2.resize(rendered, (w, h), interpolation=cv2.INTER_NEAREST)
-        return np.where(np.isfinite(r) & (r > 0), r, pointmap_depth).astype(np.float32)
+        r = cv2.resize(out.depth.cpu().numpy(), (w, h), interpolation=cv2.INTER_NEAREST) / scale  # submap u.
+        a = cv2.resize(out.alpha.cpu().numpy(), (w, h), interpolation=cv2.INTER_NEAREST)
+        take = (a > 0.99) & np.isfinite(r) & (r > 0) & np.isfinite(pointmap_depth) & (pointmap_depth > 0)
+        return np.where(take, r, pointmap_depth).astype(np.float32)
 
-    def depth_priors(self, graph, indices: list[int], n_points: int) -> int:
-        """Rendered depths of keyframes ``indices`` as depth-prior factors in ``graph``; returns how many."""
+    def _register(
+        self, chains, cid: int, sid: int, enc: SubmapEncoding, by_index: dict, new_keyframes: list[int]
+    ):
+        """Register the new keyframes (at the graph's pose) against the map as it was before them."""
+        out = []
+        for idx in new_keyframes:
+            pos = list(enc.frame_indices).index(idx)
+            T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
+            reg = self.mapper.register(by_index[idx], T, enc.points_cam[pos], enc.confidence[pos])
+            if reg is None:
+                self.n_registrations_gated += 1
+            else:
+                out.append((pos, reg))
+        return out
+
+    def send_registrations(self, chain, sid: int) -> int:
+        """The pending registrations as one factor on submap ``sid`` of ``chain``; returns how many."""
+        if not self.pending:
+            return 0
+        R_c, t_c, c = split_sim3(np.linalg.inv(chain.T_world_chain))  # world -> chain (scale c)
+        T, info = [], []
+        D = np.diag([1.0, 1.0, 1.0] + [1.0 / c] * 3)  # chain translation = c x world translation
+        for _, reg in self.pending:
+            M = np.eye(4)
+            M[:3, :3] = R_c @ reg.T_world_cam[:3, :3]
+            M[:3, 3] = c * (R_c @ reg.T_world_cam[:3, 3]) + t_c
+            T.append(M)
+            info.append(D @ reg.information @ D)
+        chain.graph.add_registration(sid, [p for p, _ in self.pending], np.stack(T), np.stack(info))
+        n = len(self.pending)
+        self.n_registrations += n
+        self.pending = []
+        return n
+
+    def depth_priors(self, graph, indices: list[int]) -> int:
+        """Depths rendered for keyframes ``indices`` before they joined the map (:meth:`add_submap`,
+        ``mapper.depth_feedback_points`` each) as depth-prior factors in ``graph``; returns how many."""
         added = 0
         for idx in indices:
-            if idx not in self._anchor:
+            if idx not in self.pending_depth:
                 continue
-            uv, depth = self.mapper.depth_feedback(idx, n_points)
+            uv, depth = self.pending_depth.pop(idx)
             if len(uv) >= 3 and graph.add_depth_prior(idx, uv, depth, self.intrinsics.K) is not None:
                 added += 1
         self.n_depth_priors += added
@@ -168,6 +232,8 @@ class MapStage:
             "final_pose_moved_mean": self.joint_stats.get("pose_moved_mean"),
             "final_pose_moved_max": self.joint_stats.get("pose_moved_max"),
             "depth_prior_factors": self.n_depth_priors,
+            "registration_factors": self.n_registrations,
+            "registrations_gated": self.n_registrations_gated,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,
             "rasterizer_backend": self.mapper.rasterizer_backend,

@@ -383,8 +383,12 @@ class Pipeline:
         """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""
         try:
             self.map_stage.add_submap(self.chains, cid, sid, enc, frames, added, flows)
+            if self.map_stage.pending and not chain.failed:
+                if self.map_stage.send_registrations(chain, sid):
+                    chain.graph.update()
+                    self.map_stage.follow_graph(self.chains)
             if self.cfg.mapper.depth_feedback and not chain.failed:
-                if self.map_stage.depth_priors(chain.graph, added, self.cfg.mapper.depth_feedback_points):
+                if self.map_stage.depth_priors(chain.graph, added):
                     chain.graph.update()
                     self.map_stage.follow_graph(self.chains)
         except GsslamError as e:

@@ -1,0 +1,164 @@
+"""Registration of a keyframe against the map, with the information it carries (feedback to the graph).
+
+SING3R's intra-submap refinement (photometric error under the alpha mask + scale-invariant depth)
+finds the keyframe pose at which the frozen map explains the image best; here it is a robust
+(Huber) Gauss-Newton over the pose's right perturbation, so that what the graph needs besides that
+pose, how sure the registration is, comes with it: the Gauss-Newton information at the optimum,
+
+    Lambda = c (J_c^T J_c / sigma_c^2 + J_d^T J_d / sigma_d^2)
+
+with ``J`` the derivative of the colour residuals (alpha > 0.9) and of the median-normalised log
+depth residuals (scale invariant) with respect to the pose's right perturbation (central differences
+of renders, Huber-weighted), ``sigma`` each term's robust residual spread at the optimum and ``c``
+(``registration_information_scale``) the discount for neighbouring pixels' correlated errors and for
+the map having been fitted to nearby views. A registration is returned only where the render explains
+the image (alpha coverage, photometric residual) and the information is well conditioned; a flat,
+textureless render gives none. See docs/mapping.md, "Registration feedback".
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from gsslam.mapping.keyframes import Keyframe
+from gsslam.mapping.pose import se3_delta_matrix
+from gsslam.mapping.state import MapState, render
+
+_log = logging.getLogger(__name__)
+
+# Noise floors: a render that matches its image perfectly (a grey wall) must not claim a pose to the
+# nanometre; colours are 8-bit and noisy (~0.02), depths of a point map no better than ~2 %.
+SIGMA_COLOR_MIN = 0.02
+SIGMA_LOG_DEPTH_MIN = 0.02
+
+
+@dataclass(frozen=True)
+class Registration:
+    index: int
+    T_world_cam: np.ndarray  # [4, 4] rigid, world units: the registered pose
+    information: np.ndarray  # [6, 6] over the pose's right perturbation (phi, rho), world units
+    coverage: float  # fraction of pixels with rendered alpha > 0.9
+    residual: float  # robust spread of the colour residual at the optimum
+    min_information: float  # smallest eigenvalue of the depth-normalised information
+    condition: float  # its condition number
+
+
+def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.Tensor, dmask: torch.Tensor):
+    """Colour residuals [3M] under ``mask`` and median-normalised log-depth residuals [Md] under ``dmask``."""
+    saved = kf.delta
+    kf.delta = delta
+    try:
+        out = render(state, kf.T_cam_world(state.device))
+    finally:
+        kf.delta = saved
+    rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
+    ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
+    return rc, ld - ld.median()
+
+
+def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
+    """Residuals, their Jacobians [., 6] over delta (rho, phi) by central differences, robust sigmas."""
+    saved = kf.delta
+    kf.delta = delta
+    try:
+        out = render(state, kf.T_cam_world(state.device))
+    finally:
+        kf.delta = saved
+    mask = out.alpha > 0.9
+    dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
+    coverage = float(mask.float().mean())
+    if int(mask.sum()) < 16:
+        return None, coverage
+    rc, rd = _residuals(state, kf, delta, mask, dmask)
+    steps = [1e-3 * kf.median_depth] * 3 + [1e-3] * 3
+    Jc, Jd = [], []
+    for i, h in enumerate(steps):
+        e = torch.zeros(6, device=delta.device)
+        e[i] = h
+        cp, dp = _residuals(state, kf, delta + e, mask, dmask)
+        cm, dm = _residuals(state, kf, delta - e, mask, dmask)
+        Jc.append(((cp - cm) / (2 * h)).double().cpu().numpy())
+        Jd.append(((dp - dm) / (2 * h)).double().cpu().numpy())
+    terms = []
+    for r, J, floor in ((rc, Jc, SIGMA_COLOR_MIN), (rd, Jd, SIGMA_LOG_DEPTH_MIN)):
+        r = r.double().cpu().numpy()
+        if len(r) < 16:
+            continue
+        sigma = max(1.4826 * float(np.median(np.abs(r))), floor)
+        w = np.minimum(1.0, 1.345 * sigma / np.maximum(np.abs(r), 1e-12))  # Huber weights
+        terms.append((r, np.stack(J, 1), w, sigma))
+    return terms, coverage
+
+
+def _normal_equations(terms) -> tuple[np.ndarray, np.ndarray]:  # H [6, 6], g [6] over (rho, phi)
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    for r, J, w, sigma in terms:
+        H += (J * w[:, None]).T @ J / sigma**2
+        g += (J * w[:, None]).T @ r / sigma**2
+    return H, g
+
+
+@torch.no_grad()
+def gauss_newton(state: MapState, kf: Keyframe, iterations: int):
+    """Robust Gauss-Newton on ``kf.delta``; returns (information (phi, rho), coverage, colour sigma)."""
+    delta = kf.delta.detach().clone()
+    best = None
+    for it in range(iterations + 1):
+        terms, coverage = _linearize(state, kf, delta)
+        if not terms:
+            return np.zeros((6, 6)), coverage, float("inf")
+        H, g = _normal_equations(terms)
+        cost = sum(float((w * r * r).sum()) / s**2 for r, _, w, s in terms)
+        if best is not None and cost > best[0]:  # the step made it worse: keep the last good point
+            delta = best[1]
+            break
+        best = (cost, delta.clone(), H, coverage, terms[0][3])
+        if it == iterations:
+            break
+        step = np.linalg.solve(H + 1e-6 * np.trace(H) / 6 * np.eye(6), -g)
+        delta = delta + torch.as_tensor(step, dtype=delta.dtype, device=delta.device)
+        if np.linalg.norm(step[3:]) < 1e-5 and np.linalg.norm(step[:3]) < 1e-5 * kf.median_depth:
+            break
+    _, kf.delta, H, coverage, sigma = best
+    P = np.r_[3, 4, 5, 0, 1, 2]  # (rho, phi) -> (phi, rho)
+    return state.cfg.registration_information_scale * H[np.ix_(P, P)], coverage, sigma
+
+
+def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | None:
+    """Register ``kf`` (not part of the map) against the map; None where the map cannot tell its pose."""
+    cfg = state.cfg
+    with torch.no_grad():
+        coverage = float((render(state, kf.T_cam_world(state.device)).alpha > 0.9).float().mean())
+    if coverage < cfg.registration_min_coverage:
+        _log.debug("registration of %d: coverage %.2f too low", kf.index, coverage)
+        return None
+    info, coverage, sigma = gauss_newton(state, kf, iterations)
+    D = np.diag([1.0, 1.0, 1.0] + [kf.median_depth] * 3)  # translation in units of the depth
+    ev = np.linalg.eigvalsh(D @ info @ D)
+    cond = float(ev[-1] / max(ev[0], 1e-12))
+    ok = (
+        coverage >= cfg.registration_min_coverage
+        and sigma <= cfg.registration_max_residual
+        and ev[0] >= cfg.registration_min_information
+        and cond <= cfg.registration_max_condition
+    )
+    _log.debug(
+        "registration of %d: coverage %.2f sigma %.3f min info %.3g cond %.3g (%s)",
+        kf.index,
+        coverage,
+        sigma,
+        ev[0],
+        cond,
+        "kept" if ok else "gated",
+    )
+    if not ok:
+        return None
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = kf.R, kf.t
+
+    T = T @ se3_delta_matrix(kf.delta.detach().cpu().double()).numpy()
+    return Registration(kf.index, T, info, coverage, sigma, float(ev[0]), cond)

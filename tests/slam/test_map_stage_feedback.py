@@ -1,0 +1,62 @@
+"""MapStage feedback paths with a stub map: what the next submap and the graph receive."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+
+from gsslam.config import MapperConfig
+from gsslam.slam.map_stage import MapStage
+
+
+def _stage(depth: torch.Tensor, alpha: torch.Tensor, scale: float) -> tuple[MapStage, list]:
+    stage = MapStage.__new__(MapStage)  # no real mapper: render_keyframe is all shared_depth reads
+    stage.cfg = MapperConfig()
+    stage.mapper = SimpleNamespace(render_keyframe=lambda index: SimpleNamespace(depth=depth, alpha=alpha))
+    stage._anchor = {7: (0, 0, 0)}
+    S = np.diag([scale, scale, scale, 1.0])
+    chains = [SimpleNamespace(T_world_chain=np.eye(4), graph=SimpleNamespace(submap_pose=lambda s: S))]
+    return stage, chains
+
+
+def test_shared_depth_replaces_only_measured_opaque_pixels():
+    """Inpainted pixels (no point-map depth) and half-transparent ones keep the encoder's depth."""
+    h, w = 6, 8
+    depth = torch.full((h, w), 4.0)  # world units
+    alpha = torch.ones(h, w)
+    alpha[:, w // 2 :] = 0.5
+    stage, chains = _stage(depth, alpha, scale=2.0)
+    pointmap = np.full((h, w), 1.5, np.float32)
+    pointmap[:2] = np.nan  # the texture mask left these without depth
+    out = stage.shared_depth(chains, 7, pointmap)
+    assert np.all(np.isnan(out[:2]))  # never filled from the map's inpainted Gaussians
+    np.testing.assert_allclose(out[2:, : w // 2], 2.0)  # rendered, in submap units (4 m / scale 2)
+    np.testing.assert_allclose(out[2:, w // 2 :], 1.5)  # alpha 0.5: the encoder's own depth
+    assert stage.shared_depth(chains, 99, pointmap) is pointmap  # not a mapper keyframe
+
+
+def test_registrations_go_to_the_chain_frame_with_their_information():
+    """A chain drawn at half size in the world: poses in chain units, translation information / 4."""
+    from gsslam.mapping.registration import Registration
+
+    sent = {}
+    graph = SimpleNamespace(
+        add_registration=lambda sid, pos, T, info: sent.update(sid=sid, pos=pos, T=T, info=info)
+    )
+    T_world_chain = np.diag([0.5, 0.5, 0.5, 1.0])  # x_world = 0.5 x_chain: chain units are twice as small
+    T_world_chain[:3, 3] = [1.0, 0.0, 0.0]
+    chain = SimpleNamespace(T_world_chain=T_world_chain, graph=graph)
+    T_world_cam = np.eye(4)
+    T_world_cam[:3, 3] = [2.0, 1.0, 0.0]
+    info = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    stage, _ = _stage(torch.zeros(1, 1), torch.zeros(1, 1), 1.0)
+    stage.n_registrations = 0
+    stage.pending = [(3, Registration(11, T_world_cam, info, 0.9, 0.03, 1e4, 10.0))]
+    assert stage.send_registrations(chain, 5) == 1
+    assert sent["sid"] == 5 and sent["pos"] == [3] and stage.pending == []
+    np.testing.assert_allclose(sent["T"][0][:3, 3], [2.0, 2.0, 0.0])  # (t_world - (1, 0, 0)) / 0.5
+    np.testing.assert_allclose(sent["T"][0][:3, :3], np.eye(3))
+    # a residual of 1 chain unit is 0.5 world units: information / 4 on translation
+    np.testing.assert_allclose(np.diag(sent["info"][0]), [1.0, 2.0, 3.0, 1.0, 1.25, 1.5])

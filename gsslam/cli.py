@@ -123,22 +123,12 @@ def run_cmd(
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics
-    bar = None
-    callback = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(unit="frame", file=sys.stderr, dynamic_ncols=True)
-
-        def callback(done: int, total: int, fps: float) -> None:
-            bar.total = total
-            bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
-            bar.update(done - bar.n)
-
+    bar = _StageBar() if progress else None
     try:
         result = run_sequence(
-            path, dataset, cfg, out, max_frames=max_frames, progress=callback or False, **ds_kwargs
-        )
+            path, dataset, cfg, out, max_frames=max_frames, progress=bar.frames if bar else False,
+            stages=bar.stage if bar else None, **ds_kwargs,
+        )  # fmt: skip
     finally:
         if bar is not None:
             bar.close()
@@ -147,6 +137,34 @@ def run_cmd(
         from gsslam.viz.rerun_log import record_run
 
         typer.echo(f"rerun recording: {record_run(out, out / 'run.rrd')}")
+
+
+class _StageBar:
+    """One tqdm bar that restarts (own total, rate and ETA) at every stage of a run."""
+
+    def __init__(self) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(desc="tracking", unit="frame", file=sys.stderr, dynamic_ncols=True)
+        self.name = "tracking"
+
+    def frames(self, done: int, total: int, fps: float) -> None:
+        self.bar.total = total
+        self.bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
+        self.bar.update(done - self.bar.n)
+
+    def stage(self, name: str, done: int, total: int) -> None:
+        if name != self.name:
+            self.name = name
+            self.bar.reset(total=total)
+            self.bar.set_description(name, refresh=False)
+            self.bar.unit = "step" if name == "final pass" else "it"
+            self.bar.set_postfix_str("", refresh=False)
+        self.bar.total = total
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 def _dataset_args(items: list[str]) -> dict:
@@ -234,11 +252,15 @@ def render_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run` (holds map.ply).")],
     out: Annotated[Path, typer.Option(help="Folder for the rendered PNGs.")] = Path("renders"),
     every: Annotated[int, typer.Option(help="Render every N-th pose of trajectory.tum.")] = 10,
+    size: Annotated[
+        Optional[str],
+        typer.Option(help="Render size WxH, e.g. 640x480 (default: the mapper's resolution)."),
+    ] = None,
 ) -> None:
     """Render frames from a saved Gaussian map along the saved trajectory."""
-    from gsslam.run.render import render_run
+    from gsslam.run.render import parse_size, render_run
 
-    n = render_run(run_dir, out, every=every)
+    n = render_run(run_dir, out, every=every, size=parse_size(size) if size else None)
     typer.echo(f"wrote {n} renders to {out}")
 
 

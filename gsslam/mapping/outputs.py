@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import cv2
@@ -11,7 +12,7 @@ from gsslam.eval.image_metrics import psnr, ssim
 from gsslam.io.ply import GaussianPly, write_ply
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.state import MapState, render_keyframe, render_pose
-from gsslam.types import Frame
+from gsslam.types import CameraIntrinsics, Frame
 
 
 def _resize_image(img: np.ndarray, w: int, h: int) -> np.ndarray:
@@ -29,22 +30,44 @@ def depth_colormap(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [H, W
     return dc
 
 
-def evaluate_map(state: MapState, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
-    """PSNR / SSIM (gsslam.eval.image_metrics) of renders vs images resized to the mapper resolution."""
+def evaluate_map(
+    state: MapState,
+    frames: Iterable[Frame],
+    poses: dict[int, np.ndarray],
+    native: CameraIntrinsics | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
+    """PSNR / SSIM (gsslam.eval.image_metrics) of renders vs the images, keyframes and other frames.
+
+    At the mapper resolution (the images resized to it): ``psnr_keyframes``, ``ssim_other``, ...; with
+    ``native`` (the input camera) also the map rendered at the input resolution vs the input images:
+    ``psnr_keyframes_native``, ... (what papers report). ``frames`` is consumed one at a time (a
+    generator keeps memory flat); ``progress(k)`` after the k-th frame.
+    """
     w, h = state.intrinsics.width, state.intrinsics.height
-    res: dict[str, list] = {"keyframes": [], "other": []}
+    res: dict[str, list] = {"keyframes": [], "other": [], "keyframes_native": [], "other_native": []}
     per_frame = {}
-    for fr in frames:
-        if fr.index not in poses:
-            continue
-        out = render_pose(state, poses[fr.index])
-        img = _resize_image(fr.image.astype(np.float32), w, h)
-        ren = out.color.clamp(0, 1).cpu().numpy()
-        p, s = psnr(ren, img), ssim(ren, img)
-        per_frame[fr.index] = p
-        res["keyframes" if fr.index in state.keyframes else "other"].append((p, s))
+    for k, fr in enumerate(frames):
+        if fr.index in poses:
+            kind = "keyframes" if fr.index in state.keyframes else "other"
+            image = fr.image.astype(np.float32)
+            ren = render_pose(state, poses[fr.index]).color.clamp(0, 1).cpu().numpy()
+            img = _resize_image(image, w, h)
+            p = psnr(ren, img)
+            per_frame[fr.index] = p
+            res[kind].append((p, ssim(ren, img)))
+            if native is not None:
+                ren = render_pose(state, poses[fr.index], native).color.clamp(0, 1).cpu().numpy()
+                img = _resize_image(image, native.width, native.height)
+                res[kind + "_native"].append((psnr(ren, img), ssim(ren, img)))
+        if progress is not None:
+            progress(k + 1)
     stats: dict = {"per_frame_psnr": per_frame, "width": w, "height": h}
+    if native is not None:
+        stats.update(native_width=native.width, native_height=native.height)
     for key, vals in res.items():
+        if key.endswith("_native") and native is None:
+            continue
         stats[f"n_{key}"] = len(vals)
         stats[f"psnr_{key}"] = float(np.mean([v[0] for v in vals])) if vals else float("nan")
         stats[f"ssim_{key}"] = float(np.mean([v[1] for v in vals])) if vals else float("nan")

@@ -20,9 +20,15 @@ from gsslam.errors import GsslamError
 from gsslam.eval.ate import compute_ate
 from gsslam.io.trajectory import write_tum
 from gsslam.slam.pipeline import Pipeline
-from gsslam.types import Trajectory
+from gsslam.types import StageProgress, Trajectory
 
 log = logging.getLogger(__name__)
+
+
+def peak_rss_mb() -> float:
+    """The process's maximum resident set size so far (``getrusage``), in MB."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
 
 
 def trajectory_of(pipe: Pipeline, poses: dict[int, np.ndarray]) -> Trajectory:
@@ -60,8 +66,13 @@ def write_outputs(
     done: int,
     interrupted: bool,
     before_batch: dict[int, np.ndarray] | None = None,
+    progress: StageProgress | None = None,
 ) -> dict:
-    """Write the trajectories, ``metrics.json``, the plot and the map outputs; returns the metrics."""
+    """Write the trajectories, ``metrics.json``, the plot and the map outputs; returns the metrics.
+
+    ``peak_rss_mb`` is the process's maximum resident size at the very end (after the map's
+    evaluation); ``peak_rss_mb_before_outputs`` the same before the outputs were written.
+    """
     try:
         poses = pipe.frame_poses()
         kf_poses = pipe.keyframe_poses()
@@ -85,8 +96,7 @@ def write_outputs(
     ate, pair = ate_metrics(gt, traj, align)
     ate_kf, _ = ate_metrics(gt, kf_traj, align)
     ate_bb, _ = ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch else (None, None)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    peak_mb = peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+    peak_mb = peak_rss_mb()
     metrics = {
         "dataset": getattr(ds, "name", type(ds).__name__),
         "mode": pipe.cfg.mode,
@@ -99,6 +109,7 @@ def write_outputs(
         "wall_time_s": wall,
         "fps": done / wall if wall > 0 else 0.0,
         "peak_rss_mb": peak_mb,
+        "peak_rss_mb_before_outputs": peak_mb,
         "ate": ate,
         "ate_keyframes": ate_kf,
         "ate_before_batch": ate_bb,
@@ -109,10 +120,11 @@ def write_outputs(
     }
     if pipe.map_stage is not None:
         try:
-            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done)
+            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done, progress=progress)
         except Exception as e:  # the map must never lose a run's trajectory and numbers
             log.warning("map outputs failed: %s", e)
             metrics["mapper"] = {"error": str(e)}
+    metrics["peak_rss_mb"] = peak_rss_mb()
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     if pair is not None:
         try:
@@ -140,11 +152,13 @@ def write_map_outputs(
     done: int,
     max_held_out: int = 40,
     panels: int = 4,
+    progress: StageProgress | None = None,
 ) -> dict:
     """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
 
-    PSNR / SSIM at the mapper resolution on every mapper keyframe and on up to ``max_held_out``
-    non-keyframes spread over the run (held out: never seen by the mapper), with their final poses.
+    PSNR / SSIM on every mapper keyframe and on up to ``max_held_out`` non-keyframes spread over the
+    run (held out: never seen by the mapper), with their final poses, at the mapper resolution and at
+    the input's (``*_native``). Frames are read one at a time, so memory does not grow with the run.
     """
     from gsslam.run.render import save_intrinsics  # torch: only when there is a map
 
@@ -158,12 +172,19 @@ def write_map_outputs(
     others = [i for i in sorted(poses) if i < done and i not in set(mapper.keyframe_indices)]
     if len(others) > max_held_out:
         others = [others[int(k)] for k in np.linspace(0, len(others) - 1, max_held_out)]
-    frames = [ds[i] for i in sorted(set(kfs) | set(others))]
-    ev = mapper.evaluate(frames, poses) if frames else {}
+    todo = sorted(set(kfs) | set(others))
+    log.info("evaluating the map on %d frames at %dx%d and %dx%d", len(todo), mapper.intrinsics.width,
+             mapper.intrinsics.height, pipe.intrinsics.width, pipe.intrinsics.height)  # fmt: skip
+
+    def tick(k: int) -> None:
+        if progress is not None:
+            progress("outputs: map metrics", k, len(todo))
+
+    ev = mapper.evaluate((ds[i] for i in todo), poses, native=True, progress=tick) if todo else {}
     ev.pop("per_frame_psnr", None)
     refined = stage.refined_keyframe_poses
     if refined and kfs:  # the map after the joint refinement, seen from its own refined keyframe poses
-        ev_r = mapper.evaluate([ds[i] for i in kfs], {i: refined[i] for i in kfs if i in refined})
+        ev_r = mapper.evaluate((ds[i] for i in kfs), {i: refined[i] for i in kfs if i in refined})
         ev["psnr_keyframes_refined_poses"] = ev_r["psnr_keyframes"]
         ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]
         gt = ds.ground_truth()

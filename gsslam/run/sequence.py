@@ -23,6 +23,7 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.run.outputs import write_outputs
 from gsslam.slam.pipeline import Pipeline
+from gsslam.types import StageProgress
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,23 @@ class RunResult:
                     f"({mp['width']}x{mp['height']})",
                 )
             )
+            if "psnr_keyframes_native" in mp:
+                rows.append(
+                    (
+                        "map (native)",
+                        f"PSNR {mp['psnr_keyframes_native']:.1f} dB keyframes / "
+                        f"{mp['psnr_other_native']:.1f} dB held-out, SSIM {mp['ssim_keyframes_native']:.3f} "
+                        f"({mp['native_width']}x{mp['native_height']})",
+                    )
+                )
+        if mp.get("final_seconds") is not None and m.get("wall_time_s"):
+            rows.append(
+                (
+                    "final pass",
+                    f"{mp['final_iterations']} steps, {mp['final_seconds']:.1f} s "
+                    f"({100 * mp['final_seconds'] / m['wall_time_s']:.0f} % of the run)",
+                )
+            )
         lp = m.get("loop_closure") or {}
         if lp.get("enabled"):
             rows.append(
@@ -85,25 +103,37 @@ def run_sequence(
     out: str | Path,
     max_frames: int | None = None,
     progress: bool | ProgressCallback = True,
+    stages: StageProgress | None = None,
     **dataset_kwargs: Any,
 ) -> RunResult:
     """Open the dataset ``dataset_name`` at ``path`` and run :func:`run_dataset` on it.
 
     ``progress``: a callback ``(done, total, fps)`` called after every frame (the CLI draws a
     progress bar with it); ``True``/``False`` without a callback report nothing (the library never prints).
+    ``stages``: a callback ``(stage, done, total)`` for the stages after tracking (batch refinement,
+    final pass, outputs).
     """
     if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
         # a monocular run reads no depth, so frames that only lack a depth image are kept
         dataset_kwargs.setdefault("with_depth", False)
     ds = open_dataset(dataset_name, path, **dataset_kwargs)
     callback = progress if callable(progress) else None
-    return run_dataset(ds, cfg, Path(out), max_frames=max_frames, progress=callback)
+    return run_dataset(ds, cfg, Path(out), max_frames=max_frames, progress=callback, stages=stages)
 
 
 def run_dataset(
-    ds, cfg: Config, out: Path, max_frames: int | None = None, progress: ProgressCallback | None = None
+    ds,
+    cfg: Config,
+    out: Path,
+    max_frames: int | None = None,
+    progress: ProgressCallback | None = None,
+    stages: StageProgress | None = None,
 ) -> RunResult:
-    """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``."""
+    """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``.
+
+    ``progress(done, total, fps)`` after every frame; ``stages(stage, done, total)`` during the stages
+    after the frames (each also logged at INFO).
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     save_config(cfg, out / "config.yaml")
@@ -122,9 +152,12 @@ def run_dataset(
                     progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
         pipe.close_chain()  # the tail's submap, so that the poses before the batch refinement are complete
         before_batch = pipe.frame_poses()
-        pipe.finish()
+        log.info("%d frames tracked in %.1f s; finishing", done, time.perf_counter() - t0)
+        pipe.finish(run_seconds=time.perf_counter() - t0, progress=stages)
         interrupted = False
     finally:
         wall = time.perf_counter() - t0
-        result.metrics = write_outputs(pipe, ds, out, wall, done, interrupted, before_batch)
+        if stages is not None:
+            stages("outputs", 0, 1)
+        result.metrics = write_outputs(pipe, ds, out, wall, done, interrupted, before_batch, progress=stages)
     return result

@@ -41,7 +41,7 @@ from gsslam.geometry import sim3_scale
 from gsslam.slam.chains import Chain, ChainKeyframe, Event
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
-from gsslam.types import CameraIntrinsics, Frame
+from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
 
@@ -266,19 +266,29 @@ class Pipeline:
             self._encode_window()
         self.window = []
 
-    def finish(self) -> None:
-        """Encode the tail, batch-refine every chain's graph."""
+    def finish(self, run_seconds: float = 0.0, progress: StageProgress | None = None) -> None:
+        """Encode the tail, batch-refine every chain's graph, run the map's final pass.
+
+        ``progress(stage, done, total)`` reports "batch refinement" (per chain) and "final pass" (per
+        step); ``run_seconds`` is the run's wall time so far (bounds the final pass when
+        ``mapper.final_max_share`` is set).
+        """
         self.close_chain()
         if self.cfg.graph.final_batch_refinement:
-            for chain in self.chains:
-                if chain.encodings and not chain.failed:
-                    try:
-                        chain.graph.refine_batch()
-                    except GsslamError as e:
-                        self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
+            todo = [c for c in self.chains if c.encodings and not c.failed]
+            log.info("batch refinement of %d chain(s)", len(todo))
+            for k, chain in enumerate(todo):
+                if progress is not None:
+                    progress("batch refinement", k, len(todo))
+                try:
+                    chain.graph.refine_batch()
+                except GsslamError as e:
+                    self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
+            if progress is not None:
+                progress("batch refinement", len(todo), len(todo))
         if self.map_stage is not None:
             try:
-                self.map_stage.finalize(self.chains)
+                self.map_stage.finalize(self.chains, run_seconds=run_seconds, progress=progress)
             except GsslamError as e:
                 self.events.append(Event(-1, "mapper", f"final map refinement failed: {e}"))
 

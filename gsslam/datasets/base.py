@@ -50,6 +50,7 @@ BUILTIN_LOADERS: dict[str, str] = {
     "images": "gsslam.datasets.images:ImageSequenceDataset",
     "rosbag": "gsslam.datasets.rosbag:RosbagDataset",
     "synthetic": "gsslam.datasets.synthetic.dataset:SyntheticDataset",
+    "playback": "gsslam.datasets.playback:PlaybackDataset",
 }
 
 _REGISTRY: dict[str, Callable[..., Dataset]] = {}  # loaders registered at run time (user loaders)

@@ -1,0 +1,223 @@
+"""Long sequences from short real ones: a base sequence replayed by a pattern, with pauses and jumps.
+
+``open_dataset("playback", path, base="tum", pattern="fbf", pause_every=0, pause_len=0, jump_every=0,
+jump_len=0, misregister=None, seed=0, n=None, **base_kwargs)`` opens ``open_dataset(base, path,
+**base_kwargs)`` (its first ``n`` frames when ``n`` is given) and plays it by a plan of source frames:
+
+- ``pattern``: letters ``f`` (forward ``0..n-1``) and ``b`` (backward ``n-1..0``), concatenated; a
+  segment that starts on the frame the previous one ended on skips it (``"fb"`` is ``0..n-1, n-2..0``;
+  ``"fbf"`` continues ``1..n-1``), so the camera turns around without a duplicated frame.
+- jumps: every ``jump_every`` played frames, the next ``jump_len`` frames of the plan are dropped (a
+  fast motion / frame drop); pauses: every ``pause_every`` played frames, the last frame is repeated
+  ``pause_len`` more times (a camera at rest). Jumps are applied first. The phase of both is 0 for
+  ``seed=0`` and drawn from ``seed`` otherwise.
+- timestamps: ``t0 + k * dt``, strictly increasing, with ``t0`` the base's first timestamp and ``dt``
+  the base's median frame period.
+- ground truth: one pose per played frame, the base ground truth *interpolated* at the source frame's
+  timestamp (linear translation, geodesic rotation between the two nearest ground-truth rows, which
+  must lie within ``gt_max_gap`` seconds; TUM's is 100 Hz motion capture); frames outside it get none.
+- ``misregister``: ``None`` or a dict ``{"baseline_m", "focal_scale", "report"}`` (see
+  :mod:`gsslam.datasets.misregistered`): the depth is replaced by what an unregistered Kinect v1
+  depth camera would see, handed out at the colour pixels.
+
+:class:`Playback` wraps an already opened dataset the same way (``Playback(base, pattern="fb")``
+is the forward-then-backward revisit of :mod:`gsslam.datasets.revisit`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gsslam.datasets.base import Dataset, DatasetError, open_dataset, register_dataset
+from gsslam.datasets.misregistered import Misregistration, misregister_depth
+from gsslam.geometry import so3_exp, so3_log
+from gsslam.types import Frame, Trajectory
+
+log = logging.getLogger(__name__)
+
+
+class PlaybackError(DatasetError):
+    """A playback plan cannot be built (bad pattern, too few frames)."""
+
+
+def playback_plan(
+    n: int,
+    pattern: str = "fbf",
+    pause_every: int = 0,
+    pause_len: int = 0,
+    jump_every: int = 0,
+    jump_len: int = 0,
+    seed: int = 0,
+) -> np.ndarray:  # -> [M] int64 source indices
+    """Source frame of every played frame (module docstring)."""
+    if n < 2:
+        raise PlaybackError(f"playback needs at least 2 frames of the base sequence, got {n}")
+    if not pattern or set(pattern) - {"f", "b"}:
+        raise PlaybackError(f"pattern must be a non-empty string of 'f' and 'b', got {pattern!r}")
+    for name, val in (("pause_every", pause_every), ("pause_len", pause_len), ("jump_every", jump_every), ("jump_len", jump_len)):
+        if int(val) < 0:
+            raise PlaybackError(f"{name} must be >= 0, got {val}")
+    plan: list[int] = []
+    for c in pattern:
+        seg = list(range(n)) if c == "f" else list(range(n - 1, -1, -1))
+        if plan and seg[0] == plan[-1]:
+            seg = seg[1:]
+        plan.extend(seg)
+    rng = np.random.default_rng(seed)
+    if jump_every > 0 and jump_len > 0:
+        phase = 0 if seed == 0 else int(rng.integers(jump_every))
+        kept: list[int] = []
+        k = 0
+        while k < len(plan):
+            kept.append(plan[k])
+            k += 1
+            if (len(kept) + phase) % jump_every == 0:
+                k += jump_len
+        plan = kept
+    if pause_every > 0 and pause_len > 0:
+        phase = 0 if seed == 0 else int(rng.integers(pause_every))
+        paused: list[int] = []
+        for k, s in enumerate(plan):
+            paused.append(s)
+            if (k + 1 + phase) % pause_every == 0:
+                paused.extend([s] * pause_len)
+        plan = paused
+    return np.asarray(plan, dtype=np.int64)
+
+
+def interpolate_trajectory(
+    traj: Trajectory, times: np.ndarray, max_gap: float
+) -> tuple[np.ndarray, np.ndarray]:  # -> ok [M] bool, poses [M, 4, 4]
+    """Poses of ``traj`` at ``times`` [M]: linear translation and geodesic rotation between the two
+    bracketing rows, valid only where both exist and lie within ``max_gap`` seconds of each other."""
+    ts = traj.timestamps
+    times = np.asarray(times, dtype=np.float64)
+    poses = np.tile(np.eye(4), (len(times), 1, 1))
+    ok = np.zeros(len(times), dtype=bool)
+    hi = np.searchsorted(ts, times)
+    for k, (t, j) in enumerate(zip(times, hi)):
+        if j < len(ts) and ts[j] == t:
+            poses[k] = traj.poses[j]
+            ok[k] = True
+            continue
+        if j == 0 or j == len(ts) or ts[j] - ts[j - 1] > max_gap:
+            continue
+        a, b = traj.poses[j - 1], traj.poses[j]
+        u = (t - ts[j - 1]) / (ts[j] - ts[j - 1])
+        poses[k, :3, :3] = a[:3, :3] @ so3_exp(u * so3_log(a[:3, :3].T @ b[:3, :3]))
+        poses[k, :3, 3] = (1.0 - u) * a[:3, 3] + u * b[:3, 3]
+        ok[k] = True
+    return ok, poses
+
+
+class Playback:
+    """``base`` replayed by a plan (module docstring); follows the dataset protocol."""
+
+    def __init__(
+        self,
+        base: Dataset,
+        pattern: str = "fbf",
+        pause_every: int = 0,
+        pause_len: int = 0,
+        jump_every: int = 0,
+        jump_len: int = 0,
+        misregister: dict[str, Any] | Misregistration | None = None,
+        seed: int = 0,
+        n: int | None = None,
+        gt_max_gap: float = 0.1,
+    ) -> None:
+        n = len(base) if n is None else min(int(n), len(base))
+        self.base = base
+        self.n = n
+        self._src = playback_plan(n, pattern, pause_every, pause_len, jump_every, jump_len, seed)
+        self.misregistration = (
+            misregister if isinstance(misregister, Misregistration) or misregister is None
+            else Misregistration.from_dict(misregister)
+        )
+        if self.misregistration is not None and not base.has_depth:
+            raise PlaybackError("misregister needs a base sequence with depth")
+        self._colour_intrinsics = base.intrinsics
+        self.intrinsics = (
+            base.intrinsics if self.misregistration is None
+            else self.misregistration.reported_intrinsics(base.intrinsics)
+        )
+        self.has_depth = base.has_depth
+        self.name = f"{getattr(base, 'name', type(base).__name__)}_{pattern}{n}"
+        base_ts = np.asarray(base.timestamps()[:n], dtype=np.float64)
+        self._src_ts = base_ts[self._src]
+        dt = float(np.median(np.diff(base_ts))) if n > 1 else 1.0
+        if not dt > 0:
+            raise PlaybackError(f"base timestamps do not increase (median step {dt})")
+        self._ts = base_ts[0] + dt * np.arange(len(self._src))
+        self._gt_ok = np.zeros(len(self._src), dtype=bool)
+        self._gt_poses: np.ndarray | None = None
+        gt = base.ground_truth()
+        if gt is not None and len(gt):
+            self._gt_ok, self._gt_poses = interpolate_trajectory(gt, self._src_ts, gt_max_gap)
+        log.info(
+            "playback %s: %d frames from %d (%s), gt on %d, misregister=%s",
+            self.name, len(self), n, pattern, int(self._gt_ok.sum()), self.misregistration,
+        )
+
+    def __len__(self) -> int:
+        return len(self._src)
+
+    def source_index(self, index: int) -> int:
+        """Index in the base sequence of played frame ``index``."""
+        return int(self._src[index])
+
+    def timestamps(self) -> list[float]:
+        return [float(t) for t in self._ts]
+
+    def __getitem__(self, index: int) -> Frame:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"playback frame {index} out of range [0, {len(self)})")
+        index = int(index) % len(self)
+        f = self.base[self.source_index(index)]
+        depth = f.depth
+        mr = self.misregistration
+        if mr is not None and depth is not None:
+            depth = misregister_depth(depth, self._colour_intrinsics, mr.baseline_m, mr.focal_scale)
+        gt = self._gt_poses[index].copy() if self._gt_ok[index] else None
+        return dataclasses.replace(
+            f, index=index, timestamp=float(self._ts[index]), intrinsics=self.intrinsics, depth=depth,
+            T_world_cam_gt=gt,
+        )
+
+    def ground_truth(self) -> Trajectory | None:
+        if not self._gt_ok.any():
+            return None
+        return Trajectory(self._ts[self._gt_ok], self._gt_poses[self._gt_ok], meta={"playback": self.name})
+
+
+@register_dataset("playback")
+class PlaybackDataset(Playback):
+    """The registered loader: opens ``base`` at ``path`` and plays it (module docstring)."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        base: str = "tum",
+        pattern: str = "fbf",
+        pause_every: int = 0,
+        pause_len: int = 0,
+        jump_every: int = 0,
+        jump_len: int = 0,
+        misregister: dict[str, Any] | None = None,
+        seed: int = 0,
+        n: int | None = None,
+        gt_max_gap: float = 0.1,
+        **base_kwargs: Any,
+    ) -> None:
+        if base == "playback":
+            raise PlaybackError("base cannot be 'playback' itself")
+        super().__init__(
+            open_dataset(base, path, **base_kwargs), pattern, pause_every, pause_len, jump_every,
+            jump_len, misregister, seed, n, gt_max_gap,
+        )

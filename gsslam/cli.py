@@ -346,11 +346,11 @@ def bench_accuracy(
     _run_batch(str(suite_path(suite)), out, jobs, address, max_frames, data_root)
 
 
-def _bench(name: str, **kwargs) -> None:
+def _bench(name: str, fn: str = "run", **kwargs) -> None:
     import importlib
 
     mod = importlib.import_module(f"gsslam.bench.{name}")
-    result = mod.run(**kwargs)
+    result = getattr(mod, fn)(**kwargs)
     typer.echo(json.dumps(result, indent=2))
 
 
@@ -379,8 +379,26 @@ def bench_pipeline(
     path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,
     max_frames: Annotated[int, typer.Option()] = 60,
     mode: Annotated[str, typer.Option()] = "rgbd",
+    lengths: Annotated[
+        Optional[str],
+        typer.Option(
+            help="Comma-separated lengths, e.g. 200,500,1000: whole runs (map and loops on) of the "
+            "sequence played by --pattern; per-stage ms per frame and memory."
+        ),
+    ] = None,
+    pattern: Annotated[str, typer.Option(help="Playback pattern for --lengths (f forward, b back).")] = (
+        "fbfbfb"
+    ),
+    map_on: Annotated[
+        bool, typer.Option("--map/--no-map", help="With --lengths: mapper and loops on.")
+    ] = True,
+    plot: Annotated[Optional[Path], typer.Option(help="With --lengths: PNG of memory against frame.")] = None,
 ) -> None:
-    """Tracking + graph FPS without the mapper."""
+    """Tracking + graph FPS without the mapper; with --lengths, the whole run's cost by stage and length."""
+    if lengths:
+        _bench("pipeline", fn="run_lengths", path=path, mode=mode, pattern=pattern, map_on=map_on, plot=plot,
+               lengths=tuple(int(x) for x in lengths.split(",")))  # fmt: skip
+        return
     _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
 
 

@@ -129,8 +129,8 @@ class MapperConfig:
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
     final_iterations_per_keyframe: int = 32  # finalize(): global pass of this x keyframes steps at the end
-    final_max_iterations: int = 2000  # finalize(): cap on its steps (0: none); when it binds, worst keyframes first
-    final_max_share: float = 0.0  # finalize(): at most this share of the run's time (0: off; timing-dependent)
+    final_max_iterations: int = 2000  # finalize(): step cap (0: none); when it binds, worst keyframes first
+    final_max_share: float = 0.0  # finalize(): at most this share of the run (0: off; timing-dependent)
     final_lr_scale: float = 3.0  # finalize(): learning rates start at this x the lr_* above, decay to 10 %
     final_densify_rounds: int = (
         0  # finalize(): densify (error-based clone/split) this many times, evenly spaced

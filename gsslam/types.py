@@ -17,7 +17,6 @@ import numpy as np
 
 from gsslam.errors import GsslamError
 
-
 StageProgress = Callable[[str, int, int], None]
 """``(stage, done, total)``: progress of a long stage ("final pass", "batch refinement", "outputs", ...).
 

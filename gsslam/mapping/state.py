@@ -90,7 +90,8 @@ def render_pose(
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R.T, -R.T @ t
     with torch.no_grad():
-        return render(state, torch.as_tensor(T, dtype=torch.float32, device=state.device), intrinsics=intrinsics)
+        T_cw = torch.as_tensor(T, dtype=torch.float32, device=state.device)
+        return render(state, T_cw, intrinsics=intrinsics)
 
 
 @torch.no_grad()

@@ -108,6 +108,7 @@ def write_outputs(
         "flow_factors": pipe.n_flow_factors,
         "wall_time_s": wall,
         "fps": done / wall if wall > 0 else 0.0,
+        "stage_seconds": dict(pipe.stage_seconds),
         "peak_rss_mb": peak_mb,
         "peak_rss_mb_before_outputs": peak_mb,
         "ate": ate,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 
 import cv2
 import numpy as np
@@ -92,6 +93,7 @@ class Pipeline:
 
             self.map_stage = MapStage(cfg.mapper, intrinsics)
         self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
+        self.stage_seconds = {"loops": 0.0, "map": 0.0}  # wall time inside the frame loop, by stage
 
     @property
     def n_flow_factors(self) -> int:
@@ -223,7 +225,9 @@ class Pipeline:
                 chain, self.chains, self.keyframes, self.prev_frames, frames, self.map_stage is not None
             )
             chain.graph.update()
+            t0 = time.perf_counter()
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
+            self.stage_seconds["loops"] += time.perf_counter() - t0
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
@@ -240,7 +244,9 @@ class Pipeline:
             self.events.append(Event(frames[-1].index, "new_chain", "after a graph failure"))
             return
         if self.map_stage is not None:
+            t0 = time.perf_counter()
             self._map_submap(chain, cid, sid, enc, frames, added, flows)
+            self.stage_seconds["map"] += time.perf_counter() - t0
         self.prev_frames = frames
         self.window = [frames[-1]]
 
@@ -274,6 +280,7 @@ class Pipeline:
         ``mapper.final_max_share`` is set).
         """
         self.close_chain()
+        t0 = time.perf_counter()
         if self.cfg.graph.final_batch_refinement:
             todo = [c for c in self.chains if c.encodings and not c.failed]
             log.info("batch refinement of %d chain(s)", len(todo))
@@ -286,11 +293,14 @@ class Pipeline:
                     self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
             if progress is not None:
                 progress("batch refinement", len(todo), len(todo))
+        self.stage_seconds["batch"] = time.perf_counter() - t0
         if self.map_stage is not None:
+            t0 = time.perf_counter()
             try:
                 self.map_stage.finalize(self.chains, run_seconds=run_seconds, progress=progress)
             except GsslamError as e:
                 self.events.append(Event(-1, "mapper", f"final map refinement failed: {e}"))
+            self.stage_seconds["final pass"] = time.perf_counter() - t0
 
     # ---- poses -------------------------------------------------------------------------------
 

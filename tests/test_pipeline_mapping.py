@@ -92,6 +92,11 @@ def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
     assert len(ply.means) == mp["num_gaussians"] > 500
     assert np.all(np.isfinite(ply.means))
     assert len(list((out / "renders").glob("keyframe_*.png"))) >= 2
+    worst = sorted((out / "renders").glob("worst_*.png"))  # where the map is weak, at 640x480
+    assert len(worst) == 2 == len(mp["worst_keyframes"])
+    import cv2
+
+    assert cv2.imread(str(worst[0])).shape == (480, 3 * 640, 3)
     assert (out / "intrinsics.yaml").is_file()
     # measured 25.2 dB keyframes / 24.8 dB held-out at 80x60 with the final pass (45 steps), 22.3 /
     # 22.0 dB without it (a blank render scores ~8 dB)

@@ -259,6 +259,11 @@ class GaussianMapper:
             intr = self.full_intrinsics if native else None
             return outputs.evaluate_map(self.map, frames, poses, intr, progress)
 
+    def native_panel(self, frame: Frame, T_world_cam: np.ndarray, path: str | Path) -> Path:
+        """``input | render | depth`` of ``frame`` at the input resolution (where the map is weak)."""
+        with torch_threads(self.cfg.num_threads):
+            return outputs.native_panel(self.map, frame, T_world_cam, self.full_intrinsics, path)
+
     def save_ply(self, path: str | Path) -> int:
         """Write the map as a 3DGS PLY; returns the file size in bytes."""
         return outputs.save_map_ply(self.map.model, path)

@@ -105,3 +105,19 @@ def keyframe_panels(state: MapState, out_dir: str | Path, n: int = 4) -> list[Pa
         cv2.imwrite(str(p), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
         paths.append(p)
     return paths
+
+
+def native_panel(
+    state: MapState, frame: Frame, T_world_cam: np.ndarray, intrinsics: CameraIntrinsics, path
+) -> Path:
+    """One PNG ``input | render | depth`` of ``frame`` at the resolution of ``intrinsics`` (the input's)."""
+    out = render_pose(state, T_world_cam, intrinsics)
+    img = (_resize_image(frame.image.astype(np.float32), intrinsics.width, intrinsics.height) * 255).astype(
+        np.uint8
+    )
+    ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+    dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
+    return path

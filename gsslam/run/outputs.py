@@ -154,12 +154,15 @@ def write_map_outputs(
     max_held_out: int = 40,
     panels: int = 4,
     progress: StageProgress | None = None,
+    panels_worst: int = 2,
 ) -> dict:
     """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
 
     PSNR / SSIM on every mapper keyframe and on up to ``max_held_out`` non-keyframes spread over the
     run (held out: never seen by the mapper), with their final poses, at the mapper resolution and at
     the input's (``*_native``). Frames are read one at a time, so memory does not grow with the run.
+    ``renders/worst_<frame>_<psnr>dB.png``: the ``panels_worst`` keyframes whose renders score lowest,
+    input | render | depth at the input resolution.
     """
     from gsslam.run.render import save_intrinsics  # torch: only when there is a map
 
@@ -182,7 +185,11 @@ def write_map_outputs(
             progress("outputs: map metrics", k, len(todo))
 
     ev = mapper.evaluate((ds[i] for i in todo), poses, native=True, progress=tick) if todo else {}
-    ev.pop("per_frame_psnr", None)
+    per_frame = ev.pop("per_frame_psnr", {})
+    worst = sorted((p, i) for i, p in per_frame.items() if i in set(kfs))[:panels_worst]
+    for p, i in worst:  # where the map is weak, at the input's resolution
+        mapper.native_panel(ds[i], poses[i], out / "renders" / f"worst_{i:06d}_{p:.1f}dB.png")
+    ev["worst_keyframes"] = [{"frame": i, "psnr": p} for p, i in worst]
     refined = stage.refined_keyframe_poses
     if refined and kfs:  # the map after the joint refinement, seen from its own refined keyframe poses
         ev_r = mapper.evaluate((ds[i] for i in kfs), {i: refined[i] for i in kfs if i in refined})

@@ -252,12 +252,13 @@ class GaussianMapper:
         poses: dict[int, np.ndarray],
         native: bool = False,
         progress: Callable[[int], None] | None = None,
+        native_only: set[int] | None = None,
     ) -> dict:
         """PSNR / SSIM of keyframes and held-out frames with a pose, at the mapper resolution and, with
         ``native``, also at the input's (``*_native``); see :func:`gsslam.mapping.outputs.evaluate_map`."""
         with torch_threads(self.cfg.num_threads):
             intr = self.full_intrinsics if native else None
-            return outputs.evaluate_map(self.map, frames, poses, intr, progress)
+            return outputs.evaluate_map(self.map, frames, poses, intr, progress, native_only)
 
     def native_panel(self, frame: Frame, T_world_cam: np.ndarray, path: str | Path) -> Path:
         """``input | render | depth`` of ``frame`` at the input resolution (where the map is weak)."""

@@ -160,7 +160,8 @@ def write_map_outputs(
 
     PSNR / SSIM on every mapper keyframe and on up to ``max_held_out`` non-keyframes spread over the
     run (held out: never seen by the mapper), with their final poses, at the mapper resolution and at
-    the input's (``*_native``). Frames are read one at a time, so memory does not grow with the run.
+    the input's (``*_native``; on at most ``max_held_out`` keyframes spread over the run, as its renders
+    cost ~16x more). Frames are read one at a time, so memory does not grow with the run.
     ``renders/worst_<frame>_<psnr>dB.png``: the ``panels_worst`` keyframes whose renders score lowest,
     input | render | depth at the input resolution.
     """
@@ -184,7 +185,15 @@ def write_map_outputs(
         if progress is not None:
             progress("outputs: map metrics", k, len(todo))
 
-    ev = mapper.evaluate((ds[i] for i in todo), poses, native=True, progress=tick) if todo else {}
+    native_kfs = (
+        kfs if len(kfs) <= max_held_out else [kfs[int(k)] for k in np.linspace(0, len(kfs) - 1, max_held_out)]
+    )
+    native_only = set(native_kfs) | set(others)
+    ev = (
+        mapper.evaluate((ds[i] for i in todo), poses, native=True, progress=tick, native_only=native_only)
+        if todo
+        else {}
+    )
     per_frame = ev.pop("per_frame_psnr", {})
     worst = sorted((p, i) for i, p in per_frame.items() if i in set(kfs))[:panels_worst]
     for p, i in worst:  # where the map is weak, at the input's resolution

@@ -69,3 +69,5 @@ def test_native_metrics_render_at_the_input_resolution(teddy_frames):
     # the 80 px map cannot hold the detail of 640 px images: native scores lower, but renders the scene
     assert 12.0 < ev["psnr_keyframes_native"] < ev["psnr_keyframes"]
     assert np.isfinite(ev["ssim_other_native"])
+    only = m.evaluate(iter(frames), {f.index: f.T_world_cam_gt for f in frames}, native=True, native_only={5})
+    assert only["n_keyframes_native"] == 1 and only["n_other_native"] == 0 and only["n_keyframes"] == 2

@@ -230,7 +230,7 @@ def demo_cmd(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """RGB-D SLAM on the bundled TUM fr3/teddy frames, then ATE/RPE against its ground truth."""
-    from gsslam.eval.report import evaluate_files
+    from gsslam.run.evaluate import evaluate_files
 
     if data is None:
         here, checkout = Path.cwd(), Path(__file__).resolve().parents[1]

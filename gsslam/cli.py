@@ -143,38 +143,55 @@ def run_cmd(
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics
-    bars: list = []  # created at the first frame, so that errors before the run stay one line
-    callback = None
-    if progress:
-        from tqdm import tqdm
-
-        def callback(done: int, total: int, fps: float) -> None:
-            if not bars:
-                bars.append(tqdm(unit="frame", file=sys.stderr, dynamic_ncols=True))
-            bar = bars[0]
-            bar.total = total
-            bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
-            bar.update(done - bar.n)
-
+    bar = _StageBar() if progress else None
     try:
         result = run_sequence(
-            path,
-            dataset,
-            cfg,
-            out,
-            max_frames=max_frames,
-            progress=callback or False,
-            overwrite=overwrite,
-            **ds_kwargs,
-        )
+            path, dataset, cfg, out, max_frames=max_frames, progress=bar.frames if bar else False,
+            stages=bar.stage if bar else None, overwrite=overwrite, **ds_kwargs,
+        )  # fmt: skip
     finally:
-        for bar in bars:
+        if bar is not None:
             bar.close()
     _echo_table(result.summary_rows(), title=f"gsslam run -> {out}")
     if viz == "rerun":
         from gsslam.viz.rerun_log import record_run
 
         typer.echo(f"rerun recording: {record_run(out, out / 'run.rrd')}")
+
+
+class _StageBar:
+    """One tqdm bar that restarts (own total, rate and ETA) at every stage of a run."""
+
+    def __init__(self) -> None:
+        self._bar = None  # created at the first update, so that errors before the run stay one line
+        self.name = "tracking"
+
+    @property
+    def bar(self):
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(desc="tracking", unit="frame", file=sys.stderr, dynamic_ncols=True)
+        return self._bar
+
+    def frames(self, done: int, total: int, fps: float) -> None:
+        self.bar.total = total
+        self.bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
+        self.bar.update(done - self.bar.n)
+
+    def stage(self, name: str, done: int, total: int) -> None:
+        if name != self.name:
+            self.name = name
+            self.bar.reset(total=total)
+            self.bar.set_description(name, refresh=False)
+            self.bar.unit = "step" if name == "final pass" else "it"
+            self.bar.set_postfix_str("", refresh=False)
+        self.bar.total = total
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
 
 
 def _dataset_args(items: list[str]) -> dict:
@@ -263,11 +280,15 @@ def render_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Output folder of a `gsslam run` (holds map.ply).")],
     out: Annotated[Path, typer.Option(help="Folder for the rendered PNGs.")] = Path("renders"),
     every: Annotated[int, typer.Option(min=1, help="Render every N-th pose of trajectory.tum.")] = 10,
+    size: Annotated[
+        Optional[str],
+        typer.Option(help="Render size WxH, e.g. 640x480 (default: the mapper's resolution)."),
+    ] = None,
 ) -> None:
     """Render frames from a saved Gaussian map along the saved trajectory."""
-    from gsslam.run.render import render_run
+    from gsslam.run.render import parse_size, render_run
 
-    n = render_run(run_dir, out, every=every)
+    n = render_run(run_dir, out, every=every, size=parse_size(size) if size else None)
     typer.echo(f"wrote {n} renders to {out}")
 
 
@@ -366,11 +387,11 @@ def bench_accuracy(
     _run_batch(str(suite_path(suite)), out, jobs, address, max_frames, data_root)
 
 
-def _bench(name: str, **kwargs) -> None:
+def _bench(name: str, fn: str = "run", **kwargs) -> None:
     import importlib
 
     mod = importlib.import_module(f"gsslam.bench.{name}")
-    result = mod.run(**kwargs)
+    result = getattr(mod, fn)(**kwargs)
     typer.echo(json.dumps(result, indent=2))
 
 
@@ -400,8 +421,26 @@ def bench_pipeline(
     path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,
     max_frames: Annotated[int, typer.Option()] = 60,
     mode: Annotated[str, typer.Option()] = "rgbd",
+    lengths: Annotated[
+        Optional[str],
+        typer.Option(
+            help="Comma-separated lengths, e.g. 200,500,1000: whole runs (map and loops on) of the "
+            "sequence played by --pattern; per-stage ms per frame and memory."
+        ),
+    ] = None,
+    pattern: Annotated[str, typer.Option(help="Playback pattern for --lengths (f forward, b back).")] = (
+        "fbfbfb"
+    ),
+    map_on: Annotated[
+        bool, typer.Option("--map/--no-map", help="With --lengths: mapper and loops on.")
+    ] = True,
+    plot: Annotated[Optional[Path], typer.Option(help="With --lengths: PNG of memory against frame.")] = None,
 ) -> None:
-    """Tracking + graph FPS without the mapper."""
+    """Tracking + graph FPS without the mapper; with --lengths, the whole run's cost by stage and length."""
+    if lengths:
+        _bench("pipeline", fn="run_lengths", path=path, mode=mode, pattern=pattern, map_on=map_on, plot=plot,
+               lengths=tuple(int(x) for x in lengths.split(",")))  # fmt: skip
+        return
     _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
 
 

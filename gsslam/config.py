@@ -139,6 +139,8 @@ class MapperConfig:
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
     final_iterations_per_keyframe: int = 32  # finalize(): global pass of this x keyframes steps at the end
+    final_max_iterations: int = 2000  # finalize(): step cap (0: none); when it binds, worst keyframes first
+    final_max_share: float = 0.0  # finalize(): at most this share of the run (0: off; timing-dependent)
     final_lr_scale: float = 3.0  # finalize(): learning rates start at this x the lr_* above, decay to 10 %
     final_densify_rounds: int = (
         0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
@@ -465,6 +467,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.registration_min_information": NONNEG,
     "mapper.registration_max_condition": _ge(1),
     "mapper.registration_information_scale": POS,
+    "mapper.final_max_iterations": _ge(0),
+    "mapper.final_max_share": UNIT,
     "loop.skip_recent": _ge(0),
     "loop.min_overlap": UNIT,
     "loop.min_score": UNIT,

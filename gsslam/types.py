@@ -10,11 +10,18 @@ Conventions (see docs/conventions.md):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from gsslam.errors import GsslamError
+
+StageProgress = Callable[[str, int, int], None]
+"""``(stage, done, total)``: progress of a long stage ("final pass", "batch refinement", "outputs", ...).
+
+The library calls it (and logs at INFO what each stage does); only the CLI draws bars from it.
+"""
 
 
 class TypesError(GsslamError):

@@ -38,17 +38,32 @@ def one_torch_thread():
     torch.set_num_threads(n)
 
 
-def _run(bundled_tum, out, extra=()):
+def _run(bundled_tum, out, extra=(), stages=None):
     ds = open_dataset("tum", bundled_tum)
     cfg = load_config(None, SMALL + list(extra), mode="rgbd")
-    run_dataset(ds, cfg, out, max_frames=N_FRAMES)
+    run_dataset(ds, cfg, out, max_frames=N_FRAMES, stages=stages)
     return json.loads((out / "metrics.json").read_text())
+
+
+STAGES: list[tuple[str, int, int]] = []
 
 
 @pytest.fixture(scope="module")
 def mapped_run(bundled_tum, tmp_path_factory):
     out = tmp_path_factory.mktemp("mapped")
-    return out, _run(bundled_tum, out)
+    return out, _run(bundled_tum, out, stages=lambda *a: STAGES.append(a))
+
+
+def test_stages_report_their_progress(mapped_run):
+    out, m = mapped_run
+    names = list(dict.fromkeys(s for s, _, _ in STAGES))
+    assert names == ["batch refinement", "final pass", "outputs", "outputs: map metrics"]
+    last = {s: (d, t) for s, d, t in STAGES}
+    assert last["final pass"] == (m["mapper"]["final_iterations"],) * 2
+    d, t = last["outputs: map metrics"]
+    assert d == t == m["mapper"]["n_keyframes"] + m["mapper"]["n_other"]
+    # the true peak: measured after the map's evaluation, never below the one before it
+    assert m["peak_rss_mb"] >= m["peak_rss_mb_before_outputs"] > 100
 
 
 def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
@@ -63,6 +78,12 @@ def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
         "ssim_other",
         "n_keyframes",
         "n_other",
+        "psnr_keyframes_native",
+        "ssim_keyframes_native",
+        "psnr_other_native",
+        "ssim_other_native",
+        "final_seconds",
+        "window_seconds",
         "depth_prior_factors",
     ):
         assert key in mp, key
@@ -71,12 +92,20 @@ def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
     assert len(ply.means) == mp["num_gaussians"] > 500
     assert np.all(np.isfinite(ply.means))
     assert len(list((out / "renders").glob("keyframe_*.png"))) >= 2
+    worst = sorted((out / "renders").glob("worst_*.png"))  # where the map is weak, at 640x480
+    assert len(worst) == 2 == len(mp["worst_keyframes"])
+    import cv2
+
+    assert cv2.imread(str(worst[0])).shape == (480, 3 * 640, 3)
     assert (out / "intrinsics.yaml").is_file()
     # measured 25.2 dB keyframes / 24.8 dB held-out at 80x60 with the final pass (45 steps), 22.3 /
     # 22.0 dB without it (a blank render scores ~8 dB)
     assert mp["final_iterations"] == 5 * mp["keyframes"]  # final_iterations_per_keyframe x keyframes
     assert mp["psnr_keyframes"] > 23.5
     assert mp["psnr_other"] > 23.0 and mp["n_other"] >= 15
+    assert (mp["native_width"], mp["native_height"]) == (640, 480)
+    assert 15.0 < mp["psnr_keyframes_native"] < mp["psnr_keyframes"]  # 80 px map, 640 px images
+    assert not mp["final_capped"] and mp["final_visits_min"] == mp["final_visits_max"] == 5
     assert mp["depth_prior_factors"] == 0  # depth_feedback is off by default
     assert mp["rasterizer_backend"] == ("c" if rasterize_cpu.available(torch.zeros(1)) else "torch")
     assert m["ate"]["rmse_m"] < 0.02

@@ -3,7 +3,11 @@
 Keyframes (Pose3) move on a circle inside a cylinder, in laps of 100; each new keyframe gets one batched
 flow factor (``points`` matches) from each of its 2 predecessors, and every ``loop_every``-th keyframe
 of the second lap a flow factor to the keyframe one lap earlier (a loop). Times are wall-clock on
-this machine; nothing is asserted (speed is reported, never tested).
+this machine; nothing is asserted (speed is reported, never tested). Each result also carries
+``reference_ms``, a fixed numpy workload shaped like one flow factor's linearisation (1000 points
+projected, their 2x6 Jacobians built and reduced), timed in the same process just before and after
+the size: ``isam2_update_median_per_reference`` compares machines and days (the absolute
+milliseconds say as much about the machine and its load as about the graph).
 
 With ``imu=True`` each keyframe also gets a velocity ``v`` and an IMU bias ``b`` and a
 ``CombinedImuFactor`` to its predecessor (keyframes 0.1 s apart, 200 Hz IMU SYNTHESIZED from the
@@ -59,6 +63,28 @@ def _matches(Ta, Tb, n, rng):
     return uv[idx], t[idx], uvb
 
 
+def reference_ms(repeats: int = 15) -> float:
+    """Median milliseconds of a fixed numpy workload like one flow-factor linearisation (see above)."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(1000, 3)) + [0, 0, 3]
+    R, t = np.eye(3), np.array([0.1, 0, 0])
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(10):
+            q = p @ R.T + t
+            z = q[:, 2:3]
+            uv = q[:, :2] / z * 300.0 + 160.0
+            J = np.zeros((len(q), 2, 6))
+            J[:, 0, 3], J[:, 1, 4] = 300.0 / z[:, 0], 300.0 / z[:, 0]
+            J[:, :, 5] = -(uv - 160.0) / z
+            J[:, 0, :3] = np.cross(q, [1.0, 0, 0]) * 300.0 / z
+            J[:, 1, :3] = np.cross(q, [0, 1.0, 0]) * 300.0 / z
+            np.einsum("nij,nik->jk", J, J)
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
 # EuRoC imu0/sensor.yaml (ADIS16448): continuous-time noise densities and random walks
 _GYRO_NOISE, _ACC_NOISE, _GYRO_WALK, _ACC_WALK = 1.6968e-4, 2.0e-3, 1.9393e-5, 3.0e-3
 _KF_DT, _IMU_RATE = 0.1, 200
@@ -105,6 +131,7 @@ def _preintegrate(k: int, per_lap: int, params, rng) -> gtsam.PreintegratedCombi
 def run_one(
     n: int, points: int, cfg: GraphConfig, loop_every: int = 50, seed: int = 0, imu: bool = False
 ) -> dict:
+    ref0 = reference_ms()
     rng = np.random.default_rng(seed)
     per_lap = 100  # keyframes 3.6 degrees apart; later laps loop back to earlier ones
     truth = [_pose(k, per_lap) for k in range(n)]
@@ -172,6 +199,7 @@ def run_one(
     backend.refine_batch()
     t_batch = time.perf_counter() - t0
     ms = [1e3 * t for t in times[1:]]
+    ref = 0.5 * (ref0 + reference_ms())
     return {
         "keyframes": n,
         "points_per_pair": points,
@@ -183,6 +211,9 @@ def run_one(
         "isam2_update_ms_max": round(max(ms), 3),
         "isam2_position_error_max_m": round(float(max(err)), 4),
         "batch_lm_s": round(t_batch, 3),
+        "reference_ms": round(ref, 3),
+        "isam2_update_median_per_reference": round(statistics.median(ms) / ref, 3),
+        "batch_lm_per_reference": round(1e3 * t_batch / ref, 1),
     }
 
 

@@ -92,3 +92,91 @@ def run(
         "cpu_cores": os.cpu_count(),
         "ate_rmse_m": m["ate"]["rmse_m"] if m.get("ate") else None,
     }
+
+
+def _rss_mb() -> float:
+    """Resident memory now (Linux ``/proc``; elsewhere the peak so far)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def run_lengths(
+    path: Path | None = None,
+    lengths: tuple[int, ...] = (200, 500, 1000),
+    mode: str = "rgbd",
+    pattern: str = "fbfbfb",
+    map_on: bool = True,
+    overrides: list[str] | None = None,
+    plot: Path | None = None,
+) -> dict:
+    """Per-stage wall time per frame and memory for growing lengths of one long sequence.
+
+    The sequence is ``path`` (TUM layout) played by ``pattern`` (:mod:`gsslam.datasets.playback`), cut
+    at each of ``lengths``; each length is one whole run (defaults: mapper and loops on unless
+    ``map_on`` is False). Stages: ``tracking`` (the frame loop without the two below: flow, keyframes,
+    encoder, graph), ``map`` (the window optimisation and seeding after every submap), ``loops``,
+    ``batch`` (the final batch refinement), ``final pass`` and ``outputs`` (map metrics, files); all
+    milliseconds per frame of wall time (on a shared machine they include waiting for a core, so
+    compare the stages and lengths of one invocation, never across machines). Resident memory is
+    sampled every 10 frames; ``plot`` writes it as a chart against the frame index.
+    """
+    from gsslam.config import load_config
+    from gsslam.datasets.base import open_dataset
+    from gsslam.run.sequence import run_dataset
+
+    rows, series = [], {}
+    base_over = [] if map_on else ["mapper.enabled=false", "loop.enabled=false"]
+    for n in lengths:
+        ds = open_dataset("playback", path or DEFAULT_PATH, base="tum", pattern=pattern)
+        cfg = load_config(None, [*base_over, *(overrides or [])], mode=mode)
+        rss: list[tuple[int, float]] = []
+        marks = {"loop_end": 0.0}
+        t0 = time.perf_counter()
+        load_before = os.getloadavg()[0]
+
+        def frames(done: int, total: int, fps: float, rss=rss, marks=marks, t0=t0) -> None:
+            if done % 10 == 0 or done == total:
+                rss.append((done, round(_rss_mb(), 1)))
+            marks["loop_end"] = time.perf_counter() - t0
+
+        with tempfile.TemporaryDirectory() as tmp:
+            m = run_dataset(ds, cfg, Path(tmp), max_frames=n, progress=frames).metrics
+        total = time.perf_counter() - t0
+        st = m.get("stage_seconds", {})
+        done = max(1, m["frames"])
+        loop_s = marks["loop_end"]
+        stages = {
+            "tracking": loop_s - st.get("map", 0.0) - st.get("loops", 0.0),
+            "map": st.get("map", 0.0),
+            "loops": st.get("loops", 0.0),
+            "batch": st.get("batch", 0.0),
+            "final pass": st.get("final pass", 0.0),
+            "outputs": total - m["wall_time_s"],
+        }
+        rows.append(
+            {
+                "frames": m["frames"],
+                "keyframes": m["keyframes"],
+                "ms_per_frame": {k: round(1e3 * v / done, 1) for k, v in stages.items()},
+                "total_s": round(total, 1),
+                "final_pass_share": round(stages["final pass"] / total, 3),
+                "peak_rss_mb": round(m["peak_rss_mb"]),
+                "rss_mb_at_end_of_frames": rss[-1][1] if rss else None,
+                "num_gaussians": (m.get("mapper") or {}).get("num_gaussians"),
+                "psnr_keyframes_native": (m.get("mapper") or {}).get("psnr_keyframes_native"),
+                "ate_rmse_m": m["ate"]["rmse_m"] if m.get("ate") else None,
+                "loadavg_1min_before_after": [round(load_before, 1), round(os.getloadavg()[0], 1)],
+            }
+        )
+        series[f"{m['frames']} frames"] = rss
+    if plot is not None:
+        from gsslam.viz.plots import plot_rss
+
+        plot_rss(plot, series, title=f"resident memory, {mode}, map {'on' if map_on else 'off'}")
+    return {"path": str(path or DEFAULT_PATH), "mode": mode, "pattern": pattern, "map": map_on,
+            "cpu_cores": os.cpu_count(), "runs": rows, "rss_by_frame": series}  # fmt: skip

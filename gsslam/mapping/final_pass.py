@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -10,6 +12,8 @@ import torch
 from gsslam.mapping.keyframes import torch_threads
 from gsslam.mapping.state import MapState, refined_poses
 from gsslam.mapping.window import adam_steps, run_stats
+
+log = logging.getLogger(__name__)
 
 _ERROR_STATE = ("err_sum", "err_count", "max_radius")
 
@@ -40,24 +44,96 @@ def prune_transparent(state: MapState) -> int:
     return int((~keep).sum())
 
 
-def finalize(state: MapState, iterations: int | None = None) -> dict:
-    """Global refinement at the end of a run: Adam over *all* keyframes (random order, poses fixed).
+def error_picker(state: MapState, order: list[int]):
+    """A ``(pick(it), observe(it, idx, psnr))`` pair that spends the steps where the render errs most.
 
-    ``iterations`` defaults to ``final_iterations_per_keyframe`` x the keyframe count (so the
-    pass costs the same per keyframe on short and long runs). Learning rates start at ``final_lr_scale`` x the
-    configured ones and decay to 10 % of that over the pass; the flow loss is weighted by
-    ``final_lambda_flow``. Afterwards only transparent Gaussians are pruned (no densification).
-    Returns stats.
+    The first shuffled epoch visits every keyframe once; afterwards a keyframe is drawn with
+    probability proportional to its last measured mean squared error (``10^(-PSNR/10)`` of its latest
+    step), so a keyframe twice as wrong gets twice the steps. Deterministic (the state's generator).
+    """
+    mse = {i: float("nan") for i in order}
+    first = epoch_picker(state, order)
+    seen = 0
+
+    def pick(it: int) -> int:
+        if seen < len(order):
+            return first(it)
+        w = np.array([mse[i] for i in order])
+        w = np.where(np.isfinite(w), w, np.nanmax(w) if np.isfinite(w).any() else 1.0)
+        return order[int(state.rng.choice(len(order), p=w / w.sum()))]
+
+    def observe(it: int, idx: int, psnr_val: float) -> None:
+        nonlocal seen
+        seen += 1
+        mse[idx] = 10.0 ** (-psnr_val / 10.0)
+
+    return pick, observe
+
+
+def final_iterations(cfg, n_keyframes: int, step_seconds: float = 0.0, run_seconds: float = 0.0) -> int:
+    """Steps of the final pass: ``final_iterations_per_keyframe`` x keyframes, capped.
+
+    Caps: ``final_max_iterations`` (steps; 0 none) and, when ``final_max_share`` > 0 and the run's
+    seconds so far and the mean seconds per map step are known, the steps that keep the pass within that
+    share of the whole run (``share / (1 - share)`` x the run so far).
+    """
+    iters = cfg.final_iterations_per_keyframe * n_keyframes
+    if cfg.final_max_iterations > 0:
+        iters = min(iters, cfg.final_max_iterations)
+    share = cfg.final_max_share
+    if 0.0 < share < 1.0 and step_seconds > 0 and run_seconds > 0:
+        iters = min(iters, max(n_keyframes, int(share / (1.0 - share) * run_seconds / step_seconds)))
+    return iters
+
+
+def finalize(
+    state: MapState,
+    iterations: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    step_seconds: float = 0.0,
+    run_seconds: float = 0.0,
+) -> dict:
+    """Global refinement at the end of a run: Adam over *all* keyframes (poses fixed).
+
+    ``iterations`` defaults to :func:`final_iterations` (``final_iterations_per_keyframe`` x the
+    keyframe count, capped by ``final_max_iterations`` and optionally by ``final_max_share`` of the run,
+    so the pass stops growing with the length of the run). While every keyframe gets its
+    ``final_iterations_per_keyframe`` steps they are visited in shuffled epochs; when a cap binds, after
+    one epoch the steps go to the keyframes whose renders err most (:func:`error_picker`). Learning rates
+    start at ``final_lr_scale`` x the configured ones and decay to 10 % of that over the pass; the flow
+    loss is weighted by ``final_lambda_flow``. Afterwards only transparent Gaussians are pruned (no
+    densification). ``progress(done, total)`` is called after every step. Returns stats.
     """
     cfg = state.cfg
+    full = cfg.final_iterations_per_keyframe * len(state.order)
     if iterations is None:
-        iters = cfg.final_iterations_per_keyframe * len(state.order)
+        iters = final_iterations(cfg, len(state.order), step_seconds, run_seconds)
     else:
         iters = int(iterations)
     if not state.order or len(state.model) == 0 or iters <= 0:
         return {"iterations": 0, "num_gaussians": len(state.model)}
     order = list(state.order)
-    pick = epoch_picker(state, order)  # every keyframe once per epoch, so none is left out
+    capped = iters < full
+    if capped:
+        pick, watch = error_picker(state, order)
+    else:
+        pick, watch = epoch_picker(state, order), None  # every keyframe once per epoch, none left out
+    visits = dict.fromkeys(order, 0)
+    done = 0
+
+    def observe(it: int, idx: int, psnr_val: float) -> None:
+        nonlocal done
+        done += 1
+        visits[idx] += 1
+        if watch is not None:
+            watch(it, idx, psnr_val)
+        if progress is not None:
+            progress(done, iters)
+
+    log.info(
+        "final pass: %d steps over %d keyframes (%s)", iters, len(order),
+        "capped: worst keyframes first" if capped else "shuffled epochs",
+    )  # fmt: skip
     t0 = time.perf_counter()
     rounds = max(0, cfg.final_densify_rounds)
     bounds = np.linspace(0, iters, rounds + 2).round().astype(int)
@@ -72,7 +148,7 @@ def finalize(state: MapState, iterations: int | None = None) -> dict:
             lr0 = cfg.final_lr_scale * 0.1 ** (bounds[r] / max(1, iters - 1))
             f, last = adam_steps(
                 state, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0,
-                lambda_flow=cfg.final_lambda_flow,
+                lambda_flow=cfg.final_lambda_flow, observe=observe,
             )  # fmt: skip
             first = f if first is None else first
             if r < rounds:  # densify where the whole map still errs; no error-based pruning
@@ -82,7 +158,14 @@ def finalize(state: MapState, iterations: int | None = None) -> dict:
                 densified += st["cloned"] + st["split"]
                 reset_error_state(state)
     pruned = prune_transparent(state)
-    return run_stats(state, iters, t0, first, last, pruned=pruned, densified=densified)
+    counts = np.array(list(visits.values()))
+    stats = run_stats(
+        state, iters, t0, first, last, pruned=pruned, densified=densified, capped=capped,
+        uncapped_iterations=full, visits_min=int(counts.min()), visits_max=int(counts.max()),
+    )  # fmt: skip
+    log.info("final pass done: %.1f s, step PSNR %.2f -> %.2f dB", stats.get("seconds", 0.0),
+             first or 0.0, last or 0.0)  # fmt: skip
+    return stats
 
 
 def refine_joint(state: MapState, iterations: int | None = None) -> dict:

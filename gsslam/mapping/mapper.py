@@ -27,6 +27,7 @@ itself is the rigid part. All depths the mapper returns are z-depths in world un
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -221,9 +222,15 @@ class GaussianMapper:
         """Sliding-window optimization; see :func:`gsslam.mapping.window.optimize_window`."""
         return optimize_window(self.map, iterations)
 
-    def finalize(self, iterations: int | None = None) -> dict:
+    def finalize(
+        self,
+        iterations: int | None = None,
+        progress: Callable[[int, int], None] | None = None,
+        step_seconds: float = 0.0,
+        run_seconds: float = 0.0,
+    ) -> dict:
         """End-of-run pass over all keyframes; see :func:`gsslam.mapping.final_pass.finalize`."""
-        return final_pass.finalize(self.map, iterations)
+        return final_pass.finalize(self.map, iterations, progress, step_seconds, run_seconds)
 
     def refine_joint(self, iterations: int | None = None) -> dict:
         """Final joint pose+map refinement; see :func:`gsslam.mapping.final_pass.refine_joint`.
@@ -263,10 +270,24 @@ class GaussianMapper:
         uv = np.stack([(uu + 0.5) / self.factor_x - 0.5, (vv + 0.5) / self.factor_y - 0.5], axis=1)
         return uv, depth
 
-    def evaluate(self, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
-        """PSNR / SSIM at the mapper resolution of keyframes and held-out frames with a pose."""
+    def evaluate(
+        self,
+        frames: Iterable[Frame],
+        poses: dict[int, np.ndarray],
+        native: bool = False,
+        progress: Callable[[int], None] | None = None,
+        native_only: set[int] | None = None,
+    ) -> dict:
+        """PSNR / SSIM of keyframes and held-out frames with a pose, at the mapper resolution and, with
+        ``native``, also at the input's (``*_native``); see :func:`gsslam.mapping.outputs.evaluate_map`."""
         with torch_threads(self.cfg.num_threads):
-            return outputs.evaluate_map(self.map, frames, poses)
+            intr = self.full_intrinsics if native else None
+            return outputs.evaluate_map(self.map, frames, poses, intr, progress, native_only)
+
+    def native_panel(self, frame: Frame, T_world_cam: np.ndarray, path: str | Path) -> Path:
+        """``input | render | depth`` of ``frame`` at the input resolution (where the map is weak)."""
+        with torch_threads(self.cfg.num_threads):
+            return outputs.native_panel(self.map, frame, T_world_cam, self.full_intrinsics, path)
 
     def save_ply(self, path: str | Path) -> int:
         """Write the map as a 3DGS PLY; returns the file size in bytes."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import cv2
@@ -12,7 +13,7 @@ from gsslam.io.atomic import atomic_path
 from gsslam.io.ply import GaussianPly, write_ply
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.state import MapState, render_keyframe, render_pose
-from gsslam.types import Frame
+from gsslam.types import CameraIntrinsics, Frame
 
 
 def _resize_image(img: np.ndarray, w: int, h: int) -> np.ndarray:
@@ -30,22 +31,46 @@ def depth_colormap(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [H, W
     return dc
 
 
-def evaluate_map(state: MapState, frames: list[Frame], poses: dict[int, np.ndarray]) -> dict:
-    """PSNR / SSIM (gsslam.eval.image_metrics) of renders vs images resized to the mapper resolution."""
+def evaluate_map(
+    state: MapState,
+    frames: Iterable[Frame],
+    poses: dict[int, np.ndarray],
+    native: CameraIntrinsics | None = None,
+    progress: Callable[[int], None] | None = None,
+    native_only: set[int] | None = None,
+) -> dict:
+    """PSNR / SSIM (gsslam.eval.image_metrics) of renders vs the images, keyframes and other frames.
+
+    At the mapper resolution (the images resized to it): ``psnr_keyframes``, ``ssim_other``, ...; with
+    ``native`` (the input camera) also the map rendered at the input resolution vs the input images:
+    ``psnr_keyframes_native``, ... (what papers report). ``frames`` is consumed one at a time (a
+    generator keeps memory flat); ``progress(k)`` after the k-th frame. ``native_only``: the frames
+    evaluated at the input resolution too (default all; a 640x480 render costs ~16x a 160x120 one).
+    """
     w, h = state.intrinsics.width, state.intrinsics.height
-    res: dict[str, list] = {"keyframes": [], "other": []}
+    res: dict[str, list] = {"keyframes": [], "other": [], "keyframes_native": [], "other_native": []}
     per_frame = {}
-    for fr in frames:
-        if fr.index not in poses:
-            continue
-        out = render_pose(state, poses[fr.index])
-        img = _resize_image(fr.image.astype(np.float32), w, h)
-        ren = out.color.clamp(0, 1).cpu().numpy()
-        p, s = psnr(ren, img), ssim(ren, img)
-        per_frame[fr.index] = p
-        res["keyframes" if fr.index in state.keyframes else "other"].append((p, s))
+    for k, fr in enumerate(frames):
+        if fr.index in poses:
+            kind = "keyframes" if fr.index in state.keyframes else "other"
+            image = fr.image.astype(np.float32)
+            ren = render_pose(state, poses[fr.index]).color.clamp(0, 1).cpu().numpy()
+            img = _resize_image(image, w, h)
+            p = psnr(ren, img)
+            per_frame[fr.index] = p
+            res[kind].append((p, ssim(ren, img)))
+            if native is not None and (native_only is None or fr.index in native_only):
+                ren = render_pose(state, poses[fr.index], native).color.clamp(0, 1).cpu().numpy()
+                img = _resize_image(image, native.width, native.height)
+                res[kind + "_native"].append((psnr(ren, img), ssim(ren, img)))
+        if progress is not None:
+            progress(k + 1)
     stats: dict = {"per_frame_psnr": per_frame, "width": w, "height": h}
+    if native is not None:
+        stats.update(native_width=native.width, native_height=native.height)
     for key, vals in res.items():
+        if key.endswith("_native") and native is None:
+            continue
         stats[f"n_{key}"] = len(vals)
         stats[f"psnr_{key}"] = float(np.mean([v[0] for v in vals])) if vals else float("nan")
         stats[f"ssim_{key}"] = float(np.mean([v[1] for v in vals])) if vals else float("nan")
@@ -84,3 +109,19 @@ def keyframe_panels(state: MapState, out_dir: str | Path, n: int = 4) -> list[Pa
             cv2.imwrite(str(tmp), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
         paths.append(p)
     return paths
+
+
+def native_panel(
+    state: MapState, frame: Frame, T_world_cam: np.ndarray, intrinsics: CameraIntrinsics, path
+) -> Path:
+    """One PNG ``input | render | depth`` of ``frame`` at the resolution of ``intrinsics`` (the input's)."""
+    out = render_pose(state, T_world_cam, intrinsics)
+    img = (_resize_image(frame.image.astype(np.float32), intrinsics.width, intrinsics.height) * 255).astype(
+        np.uint8
+    )
+    ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+    dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.concatenate([img[..., ::-1], ren[..., ::-1], dc], axis=1))
+    return path

@@ -50,9 +50,23 @@ class MapState:
         return self.keyframes[index]
 
 
-def render(state: MapState, T_cam_world: torch.Tensor, model: GaussianModel | None = None) -> RenderOutput:
-    """Render ``model`` (default: the state's) from ``T_cam_world`` [4, 4] at the mapper resolution."""
+def render(
+    state: MapState,
+    T_cam_world: torch.Tensor,  # [4, 4]
+    model: GaussianModel | None = None,
+    intrinsics: CameraIntrinsics | None = None,
+) -> RenderOutput:
+    """Render ``model`` (default: the state's) from ``T_cam_world`` at the mapper resolution.
+
+    ``intrinsics`` renders another camera instead (e.g. the input's full resolution for evaluation).
+    """
     m = state.model if model is None else model
+    if intrinsics is not None:
+        K = torch.tensor(intrinsics.K, dtype=torch.float32, device=state.device)
+        return rasterize(
+            m.means, m.quats, m.scales, m.opacities, m.rgb, T_cam_world, K,
+            intrinsics.width, intrinsics.height, backend=state.backend,
+        )  # fmt: skip
     return rasterize(
         m.means,
         m.quats,
@@ -67,13 +81,17 @@ def render(state: MapState, T_cam_world: torch.Tensor, model: GaussianModel | No
     )
 
 
-def render_pose(state: MapState, T_world_cam: np.ndarray) -> RenderOutput:
-    """Render the map (no gradients) from a (rigid or Sim(3)) ``T_world_cam`` [4, 4]."""
+def render_pose(
+    state: MapState, T_world_cam: np.ndarray, intrinsics: CameraIntrinsics | None = None
+) -> RenderOutput:
+    """Render the map (no gradients) from a (rigid or Sim(3)) ``T_world_cam`` [4, 4] (``intrinsics``:
+    another camera than the mapper's, e.g. the input at full resolution)."""
     R, t, _ = split_sim3(np.asarray(T_world_cam, dtype=np.float64))
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R.T, -R.T @ t
     with torch.no_grad():
-        return render(state, torch.as_tensor(T, dtype=torch.float32, device=state.device))
+        T_cw = torch.as_tensor(T, dtype=torch.float32, device=state.device)
+        return render(state, T_cw, intrinsics=intrinsics)
 
 
 @torch.no_grad()

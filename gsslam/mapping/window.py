@@ -80,6 +80,7 @@ def adam_steps(
     lr_pose: float | None = None,
     pose_prior_weight: float | None = None,
     lambda_flow: float | None = None,
+    observe: Callable[[int, int, float], None] | None = None,
 ) -> tuple[float | None, float | None]:
     """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
 
@@ -87,6 +88,7 @@ def adam_steps(
     configured ones (``lr_pose`` for the poses, default ``cfg.lr_pose`` unscaled) and fall
     exponentially to ``decay`` x their start over the steps. ``pose_prior_weight`` overrides
     ``lambda_pose_prior`` for the poses' anchor prior, ``lambda_flow`` the flow loss weight.
+    ``observe(it, keyframe index, step PSNR)`` is called after every step (error tracking, progress).
     """
     cfg, kfs = state.cfg, state.keyframes
     params = {k: v.detach().clone().requires_grad_(True) for k, v in state.model.params().items()}
@@ -119,6 +121,8 @@ def adam_steps(
                 g["lr"] = lr0 * gamma ** (it + 1)
         first = psnr_val if first is None else first
         last = psnr_val
+        if observe is not None:
+            observe(it, idx, psnr_val)
     for i in pose_kfs:
         kfs[i].delta = kfs[i].delta.detach()
     state.model = state.model.detached()

@@ -30,9 +30,15 @@ from gsslam.eval.ate import compute_ate
 from gsslam.io.atomic import atomic_write_text
 from gsslam.io.trajectory import write_tum
 from gsslam.slam.pipeline import Pipeline
-from gsslam.types import Trajectory
+from gsslam.types import StageProgress, Trajectory
 
 log = logging.getLogger(__name__)
+
+
+def peak_rss_mb() -> float:
+    """The process's maximum resident set size so far (``getrusage``), in MB."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
 
 
 def trajectory_of(pipe: Pipeline, poses: dict[int, np.ndarray]) -> Trajectory:
@@ -98,9 +104,14 @@ def write_outputs(
     interrupted: bool,
     before_batch: dict[int, np.ndarray] | None = None,
     provenance: dict | None = None,
+    progress: StageProgress | None = None,
 ) -> dict:
     """Write the trajectories, ``metrics.json`` (partial), the plot, the map outputs, then ``metrics.json``
-    complete; returns the metrics."""
+    complete; returns the metrics.
+
+    ``peak_rss_mb`` is the process's maximum resident size at the very end (after the map's
+    evaluation); ``peak_rss_mb_before_outputs`` the same before the outputs were written.
+    """
     try:
         poses = pipe.frame_poses()
         kf_poses = pipe.keyframe_poses()
@@ -129,8 +140,7 @@ def write_outputs(
     )
     online = getattr(pipe, "online_poses", None)  # the pose process() returned for each frame
     ate_on, _ = ate_metrics(gt, trajectory_of(pipe, online), align) if online and joined else (None, None)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    peak_mb = peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+    peak_mb = peak_rss_mb()
     metrics = {
         "dataset": getattr(ds, "name", type(ds).__name__),
         "mode": pipe.cfg.mode,
@@ -143,7 +153,9 @@ def write_outputs(
         "flow_factors": pipe.n_flow_factors,
         "wall_time_s": wall,
         "fps": done / wall if wall > 0 else 0.0,
+        "stage_seconds": dict(pipe.stage_seconds),
         "peak_rss_mb": peak_mb,
+        "peak_rss_mb_before_outputs": peak_mb,
         "ate": ate,
         "ate_keyframes": ate_kf,
         "ate_before_batch": ate_bb,
@@ -177,7 +189,7 @@ def write_outputs(
             log.warning("trajectory plot failed: %s", e)
     if pipe.map_stage is not None:
         try:
-            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done)
+            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done, progress=progress)
         except Exception as e:  # the map must never lose a run's trajectory and numbers
             log.warning("map outputs failed: %s", e)
             metrics["mapper"] = {"error": str(e)}
@@ -187,6 +199,7 @@ def write_outputs(
     else:
         metrics["provenance"]["rasterizer"] = None
     metrics["status"] = "complete"
+    metrics["peak_rss_mb"] = peak_rss_mb()  # after the map's evaluation: the true peak of the run
     write_metrics(out, metrics)
     return metrics
 
@@ -199,11 +212,17 @@ def write_map_outputs(
     done: int,
     max_held_out: int = 40,
     panels: int = 4,
+    progress: StageProgress | None = None,
+    panels_worst: int = 2,
 ) -> dict:
     """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
 
-    PSNR / SSIM at the mapper resolution on every mapper keyframe and on up to ``max_held_out``
-    non-keyframes spread over the run (held out: never seen by the mapper), with their final poses.
+    PSNR / SSIM on every mapper keyframe and on up to ``max_held_out`` non-keyframes spread over the
+    run (held out: never seen by the mapper), with their final poses, at the mapper resolution and at
+    the input's (``*_native``; on at most ``max_held_out`` keyframes spread over the run, as its renders
+    cost ~16x more). Frames are read one at a time, so memory does not grow with the run.
+    ``renders/worst_<frame>_<psnr>dB.png``: the ``panels_worst`` keyframes whose renders score lowest,
+    input | render | depth at the input resolution.
     """
     from gsslam.run.render import save_intrinsics  # torch: only when there is a map
 
@@ -217,13 +236,32 @@ def write_map_outputs(
     others = [i for i in sorted(poses) if i < done and i not in set(mapper.keyframe_indices)]
     if len(others) > max_held_out:
         others = [others[int(k)] for k in np.linspace(0, len(others) - 1, max_held_out)]
-    frames = [ds[i] for i in sorted(set(kfs) | set(others))]
-    ev = mapper.evaluate(frames, poses) if frames else {}
-    ev.pop("per_frame_psnr", None)
+    todo = sorted(set(kfs) | set(others))
+    log.info("evaluating the map on %d frames at %dx%d and %dx%d", len(todo), mapper.intrinsics.width,
+             mapper.intrinsics.height, pipe.intrinsics.width, pipe.intrinsics.height)  # fmt: skip
+
+    def tick(k: int) -> None:
+        if progress is not None:
+            progress("outputs: map metrics", k, len(todo))
+
+    native_kfs = (
+        kfs if len(kfs) <= max_held_out else [kfs[int(k)] for k in np.linspace(0, len(kfs) - 1, max_held_out)]
+    )
+    native_only = set(native_kfs) | set(others)
+    ev = (
+        mapper.evaluate((ds[i] for i in todo), poses, native=True, progress=tick, native_only=native_only)
+        if todo
+        else {}
+    )
+    per_frame = ev.pop("per_frame_psnr", {})
+    worst = sorted((p, i) for i, p in per_frame.items() if i in set(kfs))[:panels_worst]
+    for p, i in worst:  # where the map is weak, at the input's resolution
+        mapper.native_panel(ds[i], poses[i], out / "renders" / f"worst_{i:06d}_{p:.1f}dB.png")
+    ev["worst_keyframes"] = [{"frame": i, "psnr": p} for p, i in worst]
     refined = stage.refined_keyframe_poses
     # the map after the joint refinement, seen from its own refined keyframe poses (one chain only)
     if refined and kfs and one_world(pipe):
-        ev_r = mapper.evaluate([ds[i] for i in kfs], {i: refined[i] for i in kfs if i in refined})
+        ev_r = mapper.evaluate((ds[i] for i in kfs), {i: refined[i] for i in kfs if i in refined})
         ev["psnr_keyframes_refined_poses"] = ev_r["psnr_keyframes"]
         ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]
         gt = ds.ground_truth()

@@ -3,7 +3,8 @@
 A run folder holds ``map.ply`` (3DGS PLY, :mod:`gsslam.io.ply`), ``trajectory.tum`` (``T_world_cam``
 per frame) and ``intrinsics.yaml`` (``fx fy cx cy width height`` of the full-resolution camera, written
 with :func:`save_intrinsics`). Frames are rendered at the mapper resolution recorded in
-``config.yaml`` (``mapper.max_side``; 160 when there is no config).
+``config.yaml`` (``mapper.max_side``; 160 when there is no config), or at any ``size`` (W, H): the
+camera's intrinsics are scaled to it (the input's size gives the native-resolution renders).
 """
 
 from __future__ import annotations
@@ -67,10 +68,33 @@ def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:  # -> timestamps [N]
     return traj.timestamps, traj.poses
 
 
-def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int:
+def parse_size(text: str) -> tuple[int, int]:
+    """``"640x480"`` -> (640, 480)."""
+    w, sep, h = text.lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = (0, 0)
+    if not sep or min(size) <= 0:
+        raise RenderRunError(f"size must be WxH with positive integers, e.g. 640x480; got {text!r}")
+    return size
+
+
+def scaled_to(intr: CameraIntrinsics, width: int, height: int) -> CameraIntrinsics:
+    """The camera ``intr`` resized to ``width`` x ``height`` pixels (pixel-centre convention)."""
+    sx, sy = width / intr.width, height / intr.height
+    return CameraIntrinsics(
+        intr.fx * sx, intr.fy * sy, (intr.cx + 0.5) * sx - 0.5, (intr.cy + 0.5) * sy - 0.5, width, height
+    )
+
+
+def render_run(
+    run_dir: str | Path, out_dir: str | Path, every: int = 10, size: tuple[int, int] | None = None
+) -> int:
     """Render every ``every``-th pose of ``run_dir/trajectory.tum`` into ``out_dir``; returns the count.
 
-    Each PNG is ``render | depth`` (turbo colour map, black where the map is empty).
+    Each PNG is ``render | depth`` (turbo colour map, black where the map is empty), at the mapper
+    resolution or at ``size`` = (width, height).
     """
     from gsslam.io.ply import read_ply
     from gsslam.mapping.gaussians import SH_C0
@@ -94,7 +118,10 @@ def render_run(run_dir: str | Path, out_dir: str | Path, every: int = 10) -> int
                 f"{cfg_path}: mapper.max_side must be an integer >= 16, got {value!r}; fix or delete the file"
             )
         max_side = value
-    intr = intr.scaled(min(1.0, max_side / max(intr.width, intr.height)))
+    if size is None:
+        intr = intr.scaled(min(1.0, max_side / max(intr.width, intr.height)))
+    else:
+        intr = scaled_to(intr, *size)
     K = torch.tensor(intr.K, dtype=torch.float32)
     means = torch.as_tensor(g.means)
     quats = torch.as_tensor(g.quats_wxyz)

@@ -29,6 +29,7 @@ from gsslam.run.folder import RunFolder
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
 from gsslam.slam.pipeline import Pipeline
+from gsslam.types import StageProgress
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +63,23 @@ class RunResult:
                     f"{mp['num_gaussians']} Gaussians, {mp['size_mb']:.1f} MB, "
                     f"PSNR {mp['psnr_keyframes']:.1f} dB keyframes / {mp['psnr_other']:.1f} dB held-out "
                     f"({mp['width']}x{mp['height']})",
+                )
+            )
+            if "psnr_keyframes_native" in mp:
+                rows.append(
+                    (
+                        "map (native)",
+                        f"PSNR {mp['psnr_keyframes_native']:.1f} dB keyframes / "
+                        f"{mp['psnr_other_native']:.1f} dB held-out, SSIM {mp['ssim_keyframes_native']:.3f} "
+                        f"({mp['native_width']}x{mp['native_height']})",
+                    )
+                )
+        if mp.get("final_seconds") is not None and m.get("wall_time_s"):
+            rows.append(
+                (
+                    "final pass",
+                    f"{mp['final_iterations']} steps, {mp['final_seconds']:.1f} s "
+                    f"({100 * mp['final_seconds'] / m['wall_time_s']:.0f} % of the run)",
                 )
             )
         lp = m.get("loop_closure") or {}
@@ -105,6 +123,7 @@ def run_sequence(
     max_frames: int | None = None,
     progress: bool | ProgressCallback = True,
     overwrite: bool = False,
+    stages: StageProgress | None = None,
     **dataset_kwargs: Any,
 ) -> RunResult:
     """Open the dataset ``dataset_name`` at ``path`` and run :func:`run_dataset` on it.
@@ -112,6 +131,8 @@ def run_sequence(
     ``progress``: a callback ``(done, total, fps)`` called after every frame (the CLI draws a
     progress bar with it); ``True``/``False`` without a callback report nothing (the library never prints).
     The dataset is opened (and its files checked) before ``out`` is touched.
+    ``stages``: a callback ``(stage, done, total)`` for the stages after tracking (batch refinement,
+    final pass, outputs).
     """
     if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
         # a monocular run reads no depth, so frames that only lack a depth image are kept
@@ -120,7 +141,7 @@ def run_sequence(
     callback = progress if callable(progress) else None
     prov = provenance(cfg, path)
     return run_dataset(
-        ds, cfg, Path(out), max_frames=max_frames, progress=callback, overwrite=overwrite, provenance=prov
+        ds, cfg, Path(out), max_frames=max_frames, progress=callback, stages=stages, overwrite=overwrite, provenance=prov
     )
 
 
@@ -132,10 +153,13 @@ def run_dataset(
     progress: ProgressCallback | None = None,
     overwrite: bool = False,
     provenance: dict | None = None,
+    stages: StageProgress | None = None,
 ) -> RunResult:
     """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``.
 
     ``overwrite``: replace gsslam's files of an older run in ``out`` (else such a folder is refused).
+    ``progress(done, total, fps)`` after every frame; ``stages(stage, done, total)`` during the stages
+    after the frames (each also logged at INFO).
     ``provenance``: the record for ``metrics.json`` (default: :func:`gsslam.run.provenance.provenance`).
     """
     validate_config(cfg)  # a config built in Python has not been through load_config
@@ -161,11 +185,16 @@ def run_dataset(
                         progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
             pipe.close_chain()  # the tail's submap: the poses before the batch refinement are complete
             before_batch = pipe.frame_poses()
-            pipe.finish()
+            log.info("%d frames tracked in %.1f s; finishing", done, time.perf_counter() - t0)
+            pipe.finish(run_seconds=time.perf_counter() - t0, progress=stages)
             interrupted = False
         finally:
             wall = time.perf_counter() - t0
-            result.metrics = write_outputs(pipe, ds, out, wall, done, interrupted, before_batch, prov)
+            if stages is not None:
+                stages("outputs", 0, 1)
+            result.metrics = write_outputs(
+                pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages
+            )
     return result
 
 

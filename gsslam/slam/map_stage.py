@@ -30,7 +30,7 @@ import numpy as np
 
 from gsslam.config import MapperConfig
 from gsslam.geometry import sim3_scale, split_sim3
-from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
+from gsslam.types import CameraIntrinsics, Frame, StageProgress, SubmapEncoding
 
 if TYPE_CHECKING:
     from gsslam.mapping.registration import Registration
@@ -57,6 +57,8 @@ class MapStage:
         self.seconds = 0.0
         self.iterations = 0
         self.final_iterations = 0
+        self.window_seconds = self.final_seconds = 0.0
+        self.final_stats: dict = {}
         self.last_stats: dict = {}
         self.joint_stats: dict = {}  # final joint pose+map refinement (mapper.final_pose_iterations)
         self.refined_keyframe_poses: dict[int, np.ndarray] = {}  # its keyframe T_world_cam (Sim(3))
@@ -138,11 +140,22 @@ class MapStage:
         log.debug("mapper: %s", {k: v for k, v in stats.items() if not isinstance(v, dict)})
         return stats
 
-    def finalize(self, chains) -> dict:
-        """End of the run: follow the final graph estimates, then the global pass over all keyframes."""
+    def finalize(self, chains, run_seconds: float = 0.0, progress: StageProgress | None = None) -> dict:
+        """End of the run: follow the final graph estimates, then the global pass over all keyframes.
+
+        ``run_seconds`` (the run's wall time so far) and the mean seconds per window step bound the pass
+        when ``mapper.final_max_share`` is set; ``progress("final pass", done, total)`` after every step.
+        """
         self.follow_graph(chains)
-        stats = self.mapper.finalize()
+        cb = None if progress is None else (lambda done, total: progress("final pass", done, total))
+        step_s = self.seconds / self.iterations if self.iterations else 0.0
+        window_s = self.seconds
+        stats = self.mapper.finalize(progress=cb, step_seconds=step_s, run_seconds=run_seconds)
         self.seconds += stats.get("seconds", 0.0)
+        self.window_seconds = window_s
+        self.final_seconds = stats.get("seconds", 0.0)
+        keys = ("capped", "uncapped_iterations", "visits_min", "visits_max")
+        self.final_stats = {k: stats.get(k) for k in keys}
         self.final_iterations = stats.get("iterations", 0)
         if self.cfg.final_pose_iterations > 0:
             self.joint_stats = self.mapper.refine_joint()
@@ -228,6 +241,9 @@ class MapStage:
             "optimize_seconds": self.seconds,
             "iterations": self.iterations,
             "final_iterations": self.final_iterations,
+            "window_seconds": self.window_seconds,
+            "final_seconds": self.final_seconds,
+            **{f"final_{k}": v for k, v in self.final_stats.items()},
             "final_pose_iterations": self.joint_stats.get("iterations", 0),
             "final_pose_moved_mean": self.joint_stats.get("pose_moved_mean"),
             "final_pose_moved_max": self.joint_stats.get("pose_moved_max"),

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 
 import cv2
 import numpy as np
@@ -44,7 +45,7 @@ from gsslam.geometry import sim3_scale
 from gsslam.slam.chains import Chain, ChainKeyframe, Event
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
-from gsslam.types import CameraIntrinsics, Frame
+from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +98,7 @@ class Pipeline:
 
             self.map_stage = MapStage(cfg.mapper, intrinsics)
         self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
+        self.stage_seconds = {"loops": 0.0, "map": 0.0}  # wall time inside the frame loop, by stage
         self.plugins: list = []  # gsslam.slam.plugins.Plugin: user factors into the running graph
 
     def add_plugin(self, plugin) -> None:
@@ -312,7 +314,9 @@ class Pipeline:
                 self._call_plugins(chain, cid, "keyframe", [dict(frame_index=i) for i in added])
                 self._call_plugins(chain, cid, "submap", [dict(submap=sid, frame_index=frames[-1].index)])
                 self._update_graph(chain, sid, frames[-1].index)
+            t0 = time.perf_counter()
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
+            self.stage_seconds["loops"] += time.perf_counter() - t0
             self._relocalize(chain, cid, sid, frames[-1].index)
             self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
         except GsslamError as e:
@@ -330,7 +334,9 @@ class Pipeline:
             self.events.append(Event(frames[-1].index, "new_chain", "after a graph failure"))
             return
         if self.map_stage is not None:
+            t0 = time.perf_counter()
             self._map_submap(chain, cid, sid, enc, frames, added, flows)
+            self.stage_seconds["map"] += time.perf_counter() - t0
         self.prev_frames = frames
         self.window = [frames[-1]]
 
@@ -405,8 +411,13 @@ class Pipeline:
             self._encode_window()
         self.window = []
 
-    def finish(self) -> None:
-        """Encode the tail, batch-refine every chain's graph."""
+    def finish(self, run_seconds: float = 0.0, progress: StageProgress | None = None) -> None:
+        """Encode the tail, batch-refine every chain's graph, run the map's final pass.
+
+        ``progress(stage, done, total)`` reports "batch refinement" (per chain) and "final pass" (per
+        step); ``run_seconds`` is the run's wall time so far (bounds the final pass when
+        ``mapper.final_max_share`` is set).
+        """
         self.close_chain()
         if self.plugins:
             from gsslam.graph.backend import RejectedError
@@ -418,18 +429,27 @@ class Pipeline:
                         chain.graph.update()
                     except RejectedError as e:
                         self.events.append(Event(-1, "rejected", str(e)))
+        t0 = time.perf_counter()
         if self.cfg.graph.final_batch_refinement:
-            for chain in self.chains:
-                if chain.encodings and not chain.failed:
-                    try:
-                        chain.graph.refine_batch()
-                    except GsslamError as e:
-                        self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
+            todo = [c for c in self.chains if c.encodings and not c.failed]
+            log.info("batch refinement of %d chain(s)", len(todo))
+            for k, chain in enumerate(todo):
+                if progress is not None:
+                    progress("batch refinement", k, len(todo))
+                try:
+                    chain.graph.refine_batch()
+                except GsslamError as e:
+                    self.events.append(Event(-1, "graph", f"batch refinement failed: {e}"))
+            if progress is not None:
+                progress("batch refinement", len(todo), len(todo))
+        self.stage_seconds["batch"] = time.perf_counter() - t0
         if self.map_stage is not None:
+            t0 = time.perf_counter()
             try:
-                self.map_stage.finalize(self.chains)
+                self.map_stage.finalize(self.chains, run_seconds=run_seconds, progress=progress)
             except GsslamError as e:
                 self.events.append(Event(-1, "mapper", f"final map refinement failed: {e}"))
+            self.stage_seconds["final pass"] = time.perf_counter() - t0
 
     # ---- poses -------------------------------------------------------------------------------
 

@@ -76,3 +76,26 @@ def plot_trajectory(
     except OSError as e:
         raise PlotError(f"cannot write plot {out}: {e}") from None
     return out
+
+
+def plot_rss(path: str | Path, series: dict[str, list[tuple[int, float]]], title: str = "") -> Path:
+    """Resident memory (MB) against frame index, one line per run: ``series[label] = [(frame, MB)]``."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise PlotError("plots need matplotlib: pip install 'gsslam[viz]'") from None
+    fig = Figure(figsize=(6, 3.5), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    for label, pts in series.items():
+        if pts:
+            f, mb = zip(*pts)
+            ax.plot(f, mb, label=label)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("resident memory (MB)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.savefig(str(path))
+    return Path(path)

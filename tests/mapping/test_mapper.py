@@ -179,6 +179,12 @@ def test_outputs_ply_panels_and_render_run(mapped, teddy_frames, tmp_path):
     # the rendered half looks like the (downscaled) input
     ref = cv2.resize(teddy_frames[0].image, (80, 60), interpolation=cv2.INTER_AREA)[..., ::-1] * 255
     assert np.abs(img[:, :80].astype(float) - ref).mean() < 20
+    # --size: the same map at any resolution (here the input's, halved)
+    n = render_run(tmp_path, tmp_path / "big", every=4, size=(320, 240))
+    big = cv2.imread(str(sorted((tmp_path / "big").glob("*.png"))[0]))
+    assert n == 1 and big.shape == (240, 640, 3)
+    ref = cv2.resize(teddy_frames[0].image, (320, 240), interpolation=cv2.INTER_AREA)[..., ::-1] * 255
+    assert np.abs(big[:, :320].astype(float) - ref).mean() < 25
 
 
 def test_bad_input_raises(teddy_frames):

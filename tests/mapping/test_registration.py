@@ -11,8 +11,8 @@ import torch
 from gtsam.symbol_shorthand import S
 from mapping.test_mapper import _reprojection_px
 
-from gsslam.factors import make_registration_factor, to_gtsam, to_matrix
 from gsslam.config import MapperConfig
+from gsslam.factors import make_registration_factor, to_gtsam, to_matrix
 from gsslam.geometry import make_T, so3_exp
 from gsslam.mapping.mapper import GaussianMapper
 from gsslam.types import Frame

@@ -147,21 +147,14 @@ class Pipeline:
             depth = sample_depth(
                 frame_depth(self.tracker.ref), self.intrinsics, self.intrinsics, matches.uv_ref
             )
-            pc = self.cfg.pipeline
-            T_ref_cur, _ = solve_relative_pose(
-                matches,
-                depth,
-                self.intrinsics.K,
-                pc.min_pnp_inliers,
-                pc.min_pnp_inlier_ratio,
-                pc.pnp_threshold_px,
-            )
+            T_ref_cur = self._pnp(matches, depth)
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
-            elif pc.track_icp or getattr(self.encoder, "use_icp", False):
+            elif self.cfg.pipeline.track_icp or getattr(self.encoder, "use_icp", False):
                 from gsslam.frontend.icp import refine_relative_pose
 
-                T_ref_cur = refine_relative_pose(frame_depth(self.tracker.ref), frame.depth, self.intrinsics, T_ref_cur)
+                ref_depth = frame_depth(self.tracker.ref)
+                T_ref_cur = refine_relative_pose(ref_depth, frame.depth, self.intrinsics, T_ref_cur)
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
@@ -213,17 +206,9 @@ class Pipeline:
             kf = self.keyframes.get(ref)
             if kf is None:
                 return None
-            pc = self.cfg.pipeline
             intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
             depth = sample_depth(kf.depth, intr, self.intrinsics, matches.uv_ref)
-            T_ref_cur, _ = solve_relative_pose(
-                matches,
-                depth,
-                self.intrinsics.K,
-                pc.min_pnp_inliers,
-                pc.min_pnp_inlier_ratio,
-                pc.pnp_threshold_px,
-            )
+            T_ref_cur = self._pnp(matches, depth)
             if T_ref_cur is None:
                 return None
         return T_world_ref @ self._to_world_units(ref, T_ref_cur)
@@ -481,9 +466,7 @@ class Pipeline:
             kf = self.keyframes[m.ref_index]
             intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
             depth = sample_depth(kf.depth, intr, self.intrinsics, m.uv_ref)
-            T, _ = solve_relative_pose(
-                m, depth, self.intrinsics.K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
-            )
+            T = self._pnp(m, depth)
             if T is not None:
                 out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
         # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
@@ -511,6 +494,15 @@ class Pipeline:
         if self.window and self.chains:  # the origin of a chain that has no submap yet
             out.setdefault(self.window[0].index, len(self.chains) - 1)
         return out
+
+    def _pnp(self, matches: FrameMatches, depth: np.ndarray) -> np.ndarray | None:
+        """``T_ref_cur`` [4, 4] by PnP of the flow matches on the reference depth [N] (None: failed)."""
+        pc = self.cfg.pipeline
+        K = self.intrinsics.K
+        T, _ = solve_relative_pose(
+            matches, depth, K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+        )
+        return T
 
     def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
         """Scale a relative pose measured in the keyframe's submap units to world units."""

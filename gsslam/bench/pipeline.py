@@ -118,9 +118,9 @@ def run_lengths(
 
     The sequence is ``path`` (TUM layout) played by ``pattern`` (:mod:`gsslam.datasets.playback`), cut
     at each of ``lengths``; each length is one whole run (defaults: mapper and loops on unless
-    ``map_on`` is False). Stages: ``tracking`` (the frame loop without the two below: flow, keyframes,
-    encoder, graph), ``map`` (the window optimisation and seeding after every submap), ``loops``,
-    ``batch`` (the final batch refinement), ``final pass`` and ``outputs`` (map metrics, files); all
+    ``map_on`` is False). Stages: ``tracking`` (the frame loop and the tail's submap without the two
+    below: flow, keyframes, encoder, graph), ``map`` (the window optimisation and seeding after every
+    submap), ``loops``, ``batch`` (the final batch refinement), ``final pass`` and ``outputs`` (map metrics, files); all
     milliseconds per frame of wall time (on a shared machine they include waiting for a core, so
     compare the stages and lengths of one invocation, never across machines). Resident memory is
     sampled every 10 frames; ``plot`` writes it as a chart against the frame index.
@@ -135,21 +135,20 @@ def run_lengths(
         ds = open_dataset("playback", path or DEFAULT_PATH, base="tum", pattern=pattern)
         cfg = load_config(None, [*base_over, *(overrides or [])], mode=mode)
         rss: list[tuple[int, float]] = []
-        marks = {"loop_end": 0.0}
         t0 = time.perf_counter()
         load_before = os.getloadavg()[0]
 
-        def frames(done: int, total: int, fps: float, rss=rss, marks=marks, t0=t0) -> None:
+        def frames(done: int, total: int, fps: float, rss=rss) -> None:
             if done % 10 == 0 or done == total:
                 rss.append((done, round(_rss_mb(), 1)))
-            marks["loop_end"] = time.perf_counter() - t0
 
         with tempfile.TemporaryDirectory() as tmp:
             m = run_dataset(ds, cfg, Path(tmp), max_frames=n, progress=frames).metrics
         total = time.perf_counter() - t0
         st = m.get("stage_seconds", {})
         done = max(1, m["frames"])
-        loop_s = marks["loop_end"]
+        # the run's wall time covers the frame loop, the tail's submap (close_chain), batch and final pass
+        loop_s = m["wall_time_s"] - st.get("batch", 0.0) - st.get("final pass", 0.0)
         stages = {
             "tracking": loop_s - st.get("map", 0.0) - st.get("loops", 0.0),
             "map": st.get("map", 0.0),

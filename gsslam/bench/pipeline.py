@@ -121,8 +121,8 @@ def run_lengths(
     ``map_on`` is False). Stages: ``tracking`` (the frame loop and the tail's submap without the two
     below: flow, keyframes, encoder, graph), ``map`` (the window optimisation and seeding after every
     submap), ``loops``, ``batch`` (the final batch refinement), ``final pass`` and ``outputs`` (map
-    metrics, files); all milliseconds per frame of wall time (on a shared machine they include waiting for a core, so
-    compare the stages and lengths of one invocation, never across machines). Resident memory is
+    metrics, files); all milliseconds per frame of wall time (on a shared machine they include waiting
+    for a core, so compare the stages and lengths of one invocation, never across machines). Resident memory is
     sampled every 10 frames; ``plot`` writes it as a chart against the frame index.
     """
     from gsslam.config import load_config

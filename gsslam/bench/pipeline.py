@@ -122,8 +122,8 @@ def run_lengths(
     below: flow, keyframes, encoder, graph), ``map`` (the window optimisation and seeding after every
     submap), ``loops``, ``batch`` (the final batch refinement), ``final pass`` and ``outputs`` (map
     metrics, files); all milliseconds per frame of wall time (on a shared machine they include waiting
-    for a core, so compare the stages and lengths of one invocation, never across machines). Resident memory is
-    sampled every 10 frames; ``plot`` writes it as a chart against the frame index.
+    for a core, so compare the stages and lengths of one invocation, never across machines). Resident
+    memory is sampled every 10 frames; ``plot`` writes it as a chart against the frame index.
     """
     from gsslam.config import load_config
     from gsslam.datasets.base import open_dataset

@@ -47,14 +47,19 @@ class Registration:
     condition: float  # its condition number
 
 
-def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.Tensor, dmask: torch.Tensor):
-    """Colour residuals [3M] under ``mask`` and median-normalised log-depth residuals [Md] under ``dmask``."""
+def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor):
+    """Render the map from ``kf``'s pose with ``delta`` (rho, phi) [6] as its refinement; kf is unchanged."""
     saved = kf.delta
     kf.delta = delta
     try:
-        out = render(state, kf.T_cam_world(state.device))
+        return render(state, kf.T_cam_world(state.device))
     finally:
         kf.delta = saved
+
+
+def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.Tensor, dmask: torch.Tensor):
+    """Colour residuals [3M] under ``mask`` and median-normalised log-depth residuals [Md] under ``dmask``."""
+    out = _render_at(state, kf, delta)
     rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
     ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
     return rc, ld - ld.median()
@@ -62,12 +67,7 @@ def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.T
 
 def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
     """Residuals, their Jacobians [., 6] over delta (rho, phi) by central differences, robust sigmas."""
-    saved = kf.delta
-    kf.delta = delta
-    try:
-        out = render(state, kf.T_cam_world(state.device))
-    finally:
-        kf.delta = saved
+    out = _render_at(state, kf, delta)
     mask = out.alpha > 0.9
     dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
     coverage = float(mask.float().mean())

@@ -19,16 +19,16 @@ from typing import Any
 import numpy as np
 import yaml
 
-from gsslam.datasets.synthetic import trajectories as tr
 from gsslam.datasets.synthetic.presets import PRESETS
 from gsslam.datasets.synthetic.scene import SceneError
+from gsslam.datasets.synthetic.trajectories import orbit, sway_line
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
 # name -> (n_frames, arc_deg, motion_scale) -> T_world_cam [N, 4, 4]; add a path here to offer it
 TRAJECTORIES = {
-    "orbit": lambda n, arc_deg, s: tr.orbit(n, arc_deg, s),
-    "line": lambda n, arc_deg, s: tr.sway_line(n, s),
-    "loop": lambda n, arc_deg, s: tr.orbit(n, 360.0, s),
+    "orbit": lambda n, arc_deg, s: orbit(n, arc_deg, s),
+    "line": lambda n, arc_deg, s: sway_line(n, s),
+    "loop": lambda n, arc_deg, s: orbit(n, 360.0, s),
 }
 _PARAMS = ("n_frames", "width", "height", "scene", "trajectory", "seed", "motion_scale", "arc_deg", "fps")
 

@@ -112,6 +112,9 @@ def run_cmd(
         Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
     ] = None,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="Use only the first N frames.")] = None,
+    start_frame: Annotated[
+        int, typer.Option(min=0, help="Skip the first N frames (--max-frames counts from there).")
+    ] = 0,
     intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
     overwrite: Annotated[
@@ -147,7 +150,7 @@ def run_cmd(
     try:
         result = run_sequence(
             path, dataset, cfg, out, max_frames=max_frames, progress=bar.frames if bar else False,
-            stages=bar.stage if bar else None, overwrite=overwrite, **ds_kwargs,
+            stages=bar.stage if bar else None, overwrite=overwrite, start_frame=start_frame, **ds_kwargs,
         )  # fmt: skip
     finally:
         if bar is not None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from gsslam.config import Config, save_config, validate_config
 from gsslam.datasets import open_dataset
+from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
 from gsslam.run.folder import RunFolder
@@ -124,6 +125,7 @@ def run_sequence(
     progress: bool | ProgressCallback = True,
     overwrite: bool = False,
     stages: StageProgress | None = None,
+    start_frame: int = 0,
     **dataset_kwargs: Any,
 ) -> RunResult:
     """Open the dataset ``dataset_name`` at ``path`` and run :func:`run_dataset` on it.
@@ -133,13 +135,18 @@ def run_sequence(
     The dataset is opened (and its files checked) before ``out`` is touched.
     ``stages``: a callback ``(stage, done, total)`` for the stages after tracking (batch refinement,
     final pass, outputs).
+    ``start_frame``: skip the sequence's first frames (the run and ``max_frames`` count from there).
     """
     if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
         # a monocular run reads no depth, so frames that only lack a depth image are kept
         dataset_kwargs.setdefault("with_depth", False)
     ds = open_dataset(dataset_name, path, **dataset_kwargs)
+    if start_frame:
+        ds = FrameRange(ds, start_frame)
     callback = progress if callable(progress) else None
     prov = provenance(cfg, path)
+    if start_frame:
+        prov["start_frame"] = start_frame
     return run_dataset(
         ds, cfg, Path(out), max_frames=max_frames, progress=callback, stages=stages, overwrite=overwrite, provenance=prov
     )

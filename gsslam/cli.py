@@ -375,7 +375,9 @@ def batch_cmd(
 
 @bench_app.command("accuracy")
 def bench_accuracy(
-    suite: Annotated[str, typer.Option(help="Built-in suite: quick | standard | long | tracking | feedback.")] = "quick",
+    suite: Annotated[
+        str, typer.Option(help="Built-in suite: quick | standard | long | tracking | feedback.")
+    ] = "quick",
     jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam\\[batch]).")] = 1,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,

@@ -165,8 +165,8 @@ def _run_and_evaluate(spec: RunSpec, out: Path, status: dict) -> dict:
 
     # a run is re-executed only when it did not complete: its earlier attempt is replaced
     run_sequence(
-        path, s.dataset, cfg, out, max_frames=s.frames, progress=progress, overwrite=True, start_frame=s.start,
-        **kwargs,
+        path, s.dataset, cfg, out, max_frames=s.frames, progress=progress, overwrite=True,
+        start_frame=s.start, **kwargs,
     )  # fmt: skip
     gt_kwargs = dict(kwargs)
     if cfg.mode == "mono" and s.dataset in ("tum", "7scenes"):

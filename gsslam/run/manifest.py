@@ -209,7 +209,9 @@ def _frames(value: Any, where: str) -> tuple[int, int | None]:
     if isinstance(value, list | tuple):
         ok = len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
         if not ok or not 0 <= value[0] < value[1]:
-            raise ManifestError(f"{where}: frames must be N or [START, STOP] with 0 <= START < STOP, got {value!r}")
+            raise ManifestError(
+                f"{where}: frames must be N or [START, STOP] with 0 <= START < STOP, got {value!r}"
+            )
         start, value = value[0], value[1] - value[0]
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
         raise ManifestError(f"{where}: frames must be a positive integer, got {value!r}")
@@ -249,9 +251,8 @@ def _sequences(items: Any, defaults: dict) -> list[SequenceSpec]:
                 raise ManifestError(f"{where} ({name}): mode must be mono or rgbd, got {mode!r}")
             full = f"{name}_{mode}" if len(modes) > 1 else name
             start, frames = _frames(d.get("frames", defaults.get("frames")), where)
-            out.append(
-                SequenceSpec(full, str(dataset), path, mode, d.get("ground_truth"), frames, dict(kwargs), start)
-            )
+            gt = d.get("ground_truth")
+            out.append(SequenceSpec(full, str(dataset), path, mode, gt, frames, dict(kwargs), start))
     return out
 
 

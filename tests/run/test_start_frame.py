@@ -17,7 +17,8 @@ from gsslam.io.trajectory import read_tum
 def test_cli_run_from_a_start_frame(bundled_tum, tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "gsslam.cli", "run", str(bundled_tum), "--mode", "rgbd", "--out", str(out),
-           "--start-frame", "30", "--max-frames", "12", "--set", "mapper.enabled=false", "--no-progress"]  # fmt: skip
+           "--start-frame", "30", "--max-frames", "12", "--set", "mapper.enabled=false",
+           "--no-progress"]  # fmt: skip
     subprocess.run(cmd, check=True, capture_output=True, timeout=300)
     stamps = open_dataset("tum", bundled_tum).timestamps()
     traj = read_tum(out / "trajectory.tum")

@@ -10,10 +10,11 @@ Sim(3) ``T_old_new`` (``X_old ~ T_old_new X_new``) is fitted by Umeyama inside R
 rests on every verified point of every loop rather than on one submap pair.
 
 The threshold is relative to the scene depth in the earlier chain's units
-(``loop.inlier_threshold_rel`` x the median submap depth). :func:`refine_dense` then refines the
-Sim(3) by point-to-plane ICP with a scale term on the two chains' dense point maps (the sparse ORB
-points alone leave a few percent of scale error), kept only near the sparse estimate. Numpy and
-OpenCV's k-d tree: the caller decides what to do with the result
+(``loop.inlier_threshold_rel`` x the median submap depth). Monocular point maps are noisy, so few
+ORB matches survive across a gap (teddy: 24 of 228) and the sparse Sim(3) is only a start:
+:func:`refine_dense` refines it by ICP with a scale term on the two chains' dense point maps and
+verifies it there (the share of new points that meet the earlier surface). Numpy and OpenCV's
+k-d tree: the caller decides what to do with the result
 (:meth:`gsslam.slam.loop_stage.LoopStage.relocalize`).
 """
 
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gsslam.geometry import sim3_scale, split_sim3, transform_points, umeyama
-from gsslam.loop.relocalize import local_points
+from gsslam.loop.relocalize import local_points, refine_rigid
 from gsslam.loop.types import LoopConstraint
 from gsslam.loop.verification import ransac_transform
 
@@ -93,28 +94,32 @@ def refine_dense(
     points_old: np.ndarray,  # [N, 3] earlier chain's frame
     points_new: np.ndarray,  # [M, 3] new chain's frame
     threshold: float,  # earlier-chain units
-    max_rot_deg: float = 5.0,
-    max_log_scale: float = 0.1,
-) -> tuple[ChainSim3, float | None]:
-    """``fit`` refined by Sim(3) point-to-plane ICP of the dense point maps (gate ``threshold``, then
-    half of it), and the ICP fitness. The refinement is kept only when it stays near ``fit``
-    (``max_rot_deg``, 2 x ``threshold``, ``max_log_scale``) and at least 10% of the new points meet
-    the earlier surface; else ``fit`` comes back unchanged."""
+    min_fitness: float,
+    max_rot_deg: float = 30.0,
+    max_log_scale: float = 0.4,
+) -> tuple[ChainSim3 | None, float | None]:
+    """``fit`` refined on the dense point maps, and its fitness; ``(None, fitness)`` when the two
+    chains' surfaces do not meet.
+
+    Point-to-point ICP with scale (:func:`icp_sim3`, gate ``threshold`` then half of it), then
+    point-to-plane ICP with a scale term (:func:`gsslam.loop.relocalize.refine_rigid`) at half the
+    threshold. On teddy the sparse estimate is 20 deg / 28 % off where ICP lands within 4 deg / 15 %
+    (docs/loop_closure.md), so ICP may move it far; it must stay within ``max_rot_deg`` and
+    ``max_log_scale`` of it (a sanity bound, not a closeness test) and bring at least ``min_fitness``
+    of the new points within half the threshold of the earlier surface (the dense verification).
+    """
     if len(points_old) < 100 or len(points_new) < 100:
-        return fit, None
+        return None, None
     T0 = fit.T_old_new
-    T, fitness = icp_sim3(T0, points_old, points_new, threshold)
+    T, _ = icp_sim3(T0, points_old, points_new, threshold)
     T, _ = icp_sim3(T, points_old, points_new, threshold / 2)
-    R0, t0, s0 = split_sim3(T0)
-    R1, t1, s1 = split_sim3(T)
+    T, fitness = refine_rigid(T, points_old, points_new, threshold / 2, with_scale=True)
+    R0, _, s0 = split_sim3(T0)
+    R1, _, s1 = split_sim3(T)
     angle = np.degrees(np.arccos(np.clip((np.trace(R0.T @ R1) - 1) / 2, -1.0, 1.0)))
-    near = angle < max_rot_deg and abs(np.log(s1 / s0)) < max_log_scale
-    # the new chain's points moved by both: how far apart do the two estimates put them?
-    moved = np.linalg.norm(transform_points(T, points_new) - transform_points(T0, points_new), axis=1)
-    log.debug("chain Sim(3) ICP: fitness %.2f, %.2f deg, scale x%.3f, points moved %.4f (gate %.4f)",
-              fitness, angle, s1 / s0, np.median(moved), 2 * threshold)  # fmt: skip
-    if fitness < 0.1 or not near or np.median(moved) > 2 * threshold:
-        return fit, fitness
+    log.debug("chain Sim(3) ICP: fitness %.2f, moved %.1f deg, scale x%.3f", fitness, angle, s1 / s0)
+    if fitness < min_fitness or angle > max_rot_deg or abs(np.log(s1 / s0)) > max_log_scale:
+        return None, fitness
     return ChainSim3(T, fit.inliers, fit.pairs, fit.loops, fit.rms), fitness
 
 

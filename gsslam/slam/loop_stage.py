@@ -19,6 +19,7 @@ A monocular chain has its own scale and is not re-joined yet.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import cv2
@@ -120,8 +121,12 @@ class LoopStage:
         from gsslam.loop.relocalize import verified_against
 
         det_p = self._detectors[pid]
-        found = verified_against(self._detectors[cid].record(sid), det_p.records(), self.cfg, self.mode,
-                                 self._reloc_rng)  # fmt: skip
+        c = self.cfg  # across a gap fewer matches survive in noisy mono point maps: the rejoin gates
+        cfg = dataclasses.replace(
+            c, min_inliers=c.rejoin_min_inliers, min_inlier_ratio=c.rejoin_min_inlier_ratio
+        )
+        rec_i = self._detectors[cid].record(sid)
+        found = verified_against(rec_i, det_p.records(), cfg, self.mode, self._reloc_rng)
         if not found:
             return None
         pool = self._across.setdefault((cid, pid), [])
@@ -132,14 +137,18 @@ class LoopStage:
         depth_old = np.median([det_p.record(lc.m).median_depth * sim3_scale(S_old[lc.m]) for lc in pool])
         thr = self.cfg.inlier_threshold_rel * depth_old  # earlier-chain units
         fit = fit_chain_sim3(pool, S_new, S_old, thr, self.cfg.ransac_iterations, self._reloc_rng)
-        if fit is None or fit.inliers < self.cfg.min_inliers:
+        if fit is None or fit.inliers < self.cfg.rejoin_min_inliers:
             return None
         spacing = thr / 5  # earlier-chain units
         pts_old = dense_points(chains[pid].encodings, {k: gp.submap_pose(k) for k in range(gp.num_submaps)},
                                spacing)  # fmt: skip
         S_all = {k: gc.submap_pose(k) for k in range(min(gc.num_submaps, len(chains[cid].encodings)))}
         pts_new = dense_points(chains[cid].encodings, S_all, spacing / fit.scale)
-        fit, fitness = refine_dense(fit, pts_old, pts_new, thr)
+        fit, fitness = refine_dense(fit, pts_old, pts_new, thr, self.cfg.rejoin_min_fitness)
+        if fit is None:
+            log.info("chain %d: Sim(3) to chain %d not confirmed by the dense maps (fitness %s)", cid, pid,
+                     None if fitness is None else round(fitness, 3))  # fmt: skip
+            return None
         best = found[0]
         self.relocalized.append(
             {

@@ -12,9 +12,9 @@ After submap ``i`` has been added to its chain's graph and the graph updated
 4. the pipeline then moves the Gaussian map with the new estimates (``MapStage.follow_graph``).
 
 Loops are searched inside one chain (each chain has its own graph and submap ids). Across chains,
-:meth:`LoopStage.relocalize` places a new RGB-D chain in the world frame of an earlier one
-(:mod:`gsslam.loop.relocalize`): the chains then share one world frame (their graphs stay separate).
-A monocular chain has its own scale and is not re-joined yet.
+:meth:`LoopStage.relocalize` places a new chain in the world frame of an earlier one: RGB-D rigidly
+(:mod:`gsslam.loop.relocalize` + ICP), mono by a Sim(3) (:mod:`gsslam.loop.chain_sim3`: the new
+chain has its own scale). The chains then share one world frame (their graphs stay separate).
 """
 
 from __future__ import annotations

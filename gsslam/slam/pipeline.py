@@ -18,8 +18,9 @@ Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the cu
 submaps and starts a new one at the current frame (its own graph; its world placement is the
 last tracked pose). A time gap longer than ``cfg.pipeline.max_time_gap_s`` is a ``gap`` event; a
 monocular run also starts a new chain there (it cannot bridge the gap), an RGB-D run lets tracking
-decide. Chains are not re-joined yet: the runner reports ATE per chain. Outputs are written by
-:mod:`gsslam.run` (the pipeline writes no files).
+decide. A new chain is re-joined to an earlier one when re-localization against it is verified
+(:meth:`gsslam.slam.loop_stage.LoopStage.relocalize`; until then the runner reports ATE per chain).
+Outputs are written by :mod:`gsslam.run` (the pipeline writes no files).
 """
 
 from __future__ import annotations

@@ -188,8 +188,8 @@ class LoopConfig:
     max_drift_ratio: float = 0.2  # loop vs current estimate: disagreement / path length between submaps
     max_rot_discrepancy_deg: float = 30.0  # loop vs current estimate, before and after optimisation
     max_residual_factor: float = 3.0  # after optimisation: loop residual RMS / inlier threshold
-    rejoin_min_inliers: int = 20  # mono chains re-joined: pooled Sim(3) inliers across the two chains
-    rejoin_min_inlier_ratio: float = 0.1  # mono chains re-joined: inliers / matches per verified submap pair
+    rejoin_min_inliers: int = 12  # mono chains re-joined: inliers per submap pair and of the pooled Sim(3)
+    rejoin_min_inlier_ratio: float = 0.08  # mono chains re-joined: inliers / matches per submap pair
     rejoin_min_fitness: float = 0.3  # mono chains re-joined: new points on the earlier surface after ICP
 
 

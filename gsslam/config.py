@@ -188,6 +188,9 @@ class LoopConfig:
     max_drift_ratio: float = 0.2  # loop vs current estimate: disagreement / path length between submaps
     max_rot_discrepancy_deg: float = 30.0  # loop vs current estimate, before and after optimisation
     max_residual_factor: float = 3.0  # after optimisation: loop residual RMS / inlier threshold
+    rejoin_min_inliers: int = 12  # mono chains re-joined: inliers per submap pair and of the pooled Sim(3)
+    rejoin_min_inlier_ratio: float = 0.08  # mono chains re-joined: inliers / matches per submap pair
+    rejoin_min_fitness: float = 0.3  # mono chains re-joined: new points on the earlier surface after ICP
 
 
 @dataclass(frozen=True)
@@ -486,6 +489,9 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "loop.max_drift_ratio": POS,
     "loop.max_rot_discrepancy_deg": Range(0.0, 180.0, lo_open=True),
     "loop.max_residual_factor": POS,
+    "loop.rejoin_min_inliers": _ge(3),
+    "loop.rejoin_min_inlier_ratio": UNIT,
+    "loop.rejoin_min_fitness": UNIT,
     "pipeline.track_points": _ge(8),
     "pipeline.min_photo_consistency": UNIT,
     "pipeline.min_pnp_inliers": _ge(4),

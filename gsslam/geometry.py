@@ -99,6 +99,14 @@ def split_sim3(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return T[:3, :3] / s, T[:3, 3].copy(), s
 
 
+def compose_rigid(S_a_b: np.ndarray, T_b_c: np.ndarray) -> np.ndarray:  # [4, 4], [4, 4] -> [4, 4]
+    """Rigid ``T_a_c`` of a rigid (or Sim(3)) pose ``T_b_c`` seen through the Sim(3) ``S_a_b``: the
+    rotation without the scale, the translation in frame-a units (rigid ``S_a_b``: ``S_a_b @ T_b_c``)."""
+    T = np.asarray(S_a_b, dtype=np.float64) @ np.asarray(T_b_c, dtype=np.float64)
+    T[:3, :3] /= sim3_scale(T)
+    return T
+
+
 def invert_T(T: np.ndarray) -> np.ndarray:
     """Inverse of an SE(3) or Sim(3) 4x4 matrix (batched over leading dims)."""
     T = np.asarray(T, dtype=np.float64)

@@ -30,21 +30,34 @@ def relocalize(
     rng: np.random.Generator,
 ) -> LoopConstraint | None:
     """The verified constraint between ``rec_i`` and the best of ``earlier`` (another chain), or None."""
+    loops = verified_against(rec_i, earlier, cfg, mode, rng)
+    return loops[0] if loops else None
+
+
+def verified_against(
+    rec_i: SubmapRecord,
+    earlier: list[SubmapRecord],
+    cfg: LoopConfig,
+    mode: str,
+    rng: np.random.Generator,
+) -> list[LoopConstraint]:
+    """Every verified constraint between ``rec_i`` and the ``max_reprojection_checks`` submaps of
+    ``earlier`` that look most alike, most inliers first."""
     ranked = []
     for rec_m in earlier:
         app = appearance_overlap(rec_i.appearance, rec_m.appearance)  # [V_i, V_m]
         if app.size:
             ranked.append((float(app.max()), rec_m, app))
     ranked.sort(key=lambda r: -r[0])
-    best: LoopConstraint | None = None
+    found: list[LoopConstraint] = []
     for score, rec_m, app in ranked[: cfg.max_reprojection_checks]:
         flat = np.argsort(-app, axis=None)
         pairs = tuple((int(a), int(b)) for a, b in zip(*np.unravel_index(flat, app.shape)))
         cand = LoopCandidate(rec_i.submap_id, rec_m.submap_id, 0.0, score, score, pairs)
         loop = verify(cand, rec_i, rec_m, cfg, mode, rng)
-        if loop is not None and (best is None or len(loop) > len(best)):
-            best = loop
-    return best
+        if loop is not None:
+            found.append(loop)
+    return sorted(found, key=lambda lc: -len(lc))  # stable: ties keep the appearance order
 
 
 def local_points(enc: SubmapEncoding, voxel: float) -> np.ndarray:  # -> [N, 3] submap-local
@@ -76,12 +89,15 @@ def refine_rigid(
     points_src: np.ndarray,  # [M, 3]
     max_distance: float,
     iterations: int = 30,
+    with_scale: bool = False,
 ) -> tuple[np.ndarray, float]:
     """Point-to-plane ICP of ``points_src`` onto ``points_dst`` from ``T_dst_src``; returns the refined
     transform and its fitness (share of ``points_src`` with a partner within ``max_distance``).
 
     Exact nearest neighbours from OpenCV's single k-d tree (deterministic); each step solves the
-    linearized point-to-plane least squares for a small rotation and translation.
+    linearized point-to-plane least squares for a small rotation and translation, and with
+    ``with_scale`` (Sim(3), two monocular chains) also a small log-scale ``sigma``: a moved point
+    ``p`` becomes ``(1 + sigma) p + omega x p + t``, so its column is ``n . p``.
     """
     import cv2
 
@@ -100,9 +116,11 @@ def refine_rigid(
             break
         p, q, n = moved[ok], dst[idx[ok]], normals[idx[ok]]
         A = np.concatenate([np.cross(p, n), n], axis=1)  # [K, 6]: d(residual)/d(omega, t)
+        if with_scale:
+            A = np.concatenate([A, np.einsum("ki,ki->k", p, n)[:, None]], axis=1)  # [K, 7]: and sigma
         b = np.einsum("ki,ki->k", q - p, n)
         x = np.linalg.lstsq(A, b, rcond=None)[0]
-        dT = make_T(so3_exp(x[:3]), x[3:])
+        dT = make_T(so3_exp(x[:3]), x[3:6], float(np.exp(x[6])) if with_scale else 1.0)
         T = dT @ T
         if np.linalg.norm(x) < 1e-7:
             break

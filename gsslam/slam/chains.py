@@ -3,8 +3,9 @@
 A chain is a run of consecutive submaps linked through shared keyframes and optimised in one graph
 (:class:`gsslam.graph.submap_graph.SubmapGraph`). Tracking loss closes a chain; the next one starts
 at the current frame, placed in the output world at the last tracked pose (a guess: ``in_world`` is
-False) until re-localization against an earlier chain places it for real (RGB-D,
-:meth:`gsslam.slam.loop_stage.LoopStage.relocalize`).
+False) until re-localization against an earlier chain places it for real
+(:meth:`gsslam.slam.loop_stage.LoopStage.relocalize`): a rigid ``T_world_chain`` for RGB-D, a Sim(3)
+one for mono (the new chain has its own scale; :mod:`gsslam.loop.chain_sim3`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gsslam.geometry import compose_rigid, sim3_scale
 from gsslam.types import SubmapEncoding
 
 
@@ -38,7 +40,16 @@ class Chain:
     """Consecutive submaps linked through shared keyframes, optimised in one graph."""
 
     graph: object
-    T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world
+    T_world_chain: np.ndarray  # [4, 4] where the chain's origin sits in the output world (Sim(3) in mono)
     encodings: list[SubmapEncoding] = field(default_factory=list)
     failed: bool = False  # an update threw: no further optimisation of this graph
     in_world: bool = False  # T_world_chain is verified (the first chain, or re-localized against one)
+
+    @property
+    def scale(self) -> float:
+        """World units per chain unit (1 unless a mono chain was re-joined with a Sim(3))."""
+        return sim3_scale(self.T_world_chain)
+
+    def world_pose(self, T_chain_cam: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4] rigid
+        """A camera pose of this chain's graph as a rigid ``T_world_cam`` in the output world."""
+        return compose_rigid(self.T_world_chain, T_chain_cam)

@@ -12,19 +12,21 @@ After submap ``i`` has been added to its chain's graph and the graph updated
 4. the pipeline then moves the Gaussian map with the new estimates (``MapStage.follow_graph``).
 
 Loops are searched inside one chain (each chain has its own graph and submap ids). Across chains,
-:meth:`LoopStage.relocalize` places a new RGB-D chain in the world frame of an earlier one
-(:mod:`gsslam.loop.relocalize`): the chains then share one world frame (their graphs stay separate).
-A monocular chain has its own scale and is not re-joined yet.
+:meth:`LoopStage.relocalize` places a new chain in the world frame of an earlier one: RGB-D rigidly
+(:mod:`gsslam.loop.relocalize` + ICP), mono by a Sim(3) (:mod:`gsslam.loop.chain_sim3`: the new
+chain has its own scale). The chains then share one world frame (their graphs stay separate).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import cv2
 import numpy as np
 
 from gsslam.config import LoopConfig
+from gsslam.geometry import sim3_scale
 from gsslam.types import Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
@@ -55,6 +57,7 @@ class LoopStage:
         self.corrections = 0  # graph updates caused by loops
         self.relocalized: list[dict] = []  # chains placed in the world frame by re-localization
         self._reloc_rng = np.random.default_rng(seed + 7919)
+        self._across: dict[tuple[int, int], list] = {}  # (new chain, earlier chain) -> verified loops (mono)
 
     def _detector(self, cid: int):
         if cid not in self._detectors:
@@ -97,53 +100,115 @@ class LoopStage:
 
     def relocalize(self, chains, cid: int, sid: int) -> np.ndarray | None:
         """``T_world_chain`` for chain ``cid`` from its submap ``sid`` verified against an earlier chain
-        that is in the world frame, or None (RGB-D only; loop closure must be enabled)."""
-        from gsslam.geometry import invert_T
-        from gsslam.loop.relocalize import relocalize
-
-        if not self.cfg.enabled or self.mode != "rgbd" or cid not in self._detectors:
+        that is in the world frame, or None (loop closure must be enabled). RGB-D: rigid, refined by
+        ICP; mono: a Sim(3) from every loop verified across the two chains so far."""
+        if not self.cfg.enabled or cid not in self._detectors:
             return None
-        rec_i = self._detectors[cid].record(sid)
         for pid in range(cid):
             if pid not in self._detectors or not chains[pid].in_world or chains[pid].failed:
                 continue
-            loop = relocalize(rec_i, self._detectors[pid].records(), self.cfg, self.mode, self._reloc_rng)
-            if loop is None:
-                continue
-            # in chain pid's frame: submap i of chain cid sits at T_p_i (RANSAC), refined by ICP against
-            # the dense points of every submap of chain pid
-            gp = chains[pid].graph
-            T_p_i, fitness = gp.submap_pose(loop.m) @ invert_T(loop.T_i_m), None
-            if sid < len(chains[cid].encodings) and chains[pid].encodings:
-                from gsslam.loop.relocalize import local_points, refine_rigid
-
-                thr = self.cfg.inlier_threshold_m  # ICP gate: the loop inlier distance (metres)
-                pts_i = local_points(chains[cid].encodings[sid], thr / 5)
-                pts_p = []
-                for k, enc in enumerate(chains[pid].encodings):
-                    T = gp.submap_pose(k)
-                    pts_p.append(local_points(enc, thr / 5) @ T[:3, :3].T + T[:3, 3])
-                pts_p = np.concatenate(pts_p)
-                if len(pts_i) >= 100 and len(pts_p) >= 100:
-                    T_ref, fitness = refine_rigid(T_p_i, pts_p, pts_i, thr)
-                    T_ref, _ = refine_rigid(T_ref, pts_p, pts_i, thr / 2)  # then a tighter gate
-                    if fitness >= ICP_MIN_FITNESS and close_to(T_ref, T_p_i, 2 * thr):
-                        T_p_i = T_ref  # else the RANSAC estimate stays
-            T_world_i = chains[pid].T_world_chain @ T_p_i
-            self.relocalized.append(
-                {
-                    "chain": cid,
-                    "submap": sid,
-                    "to_chain": pid,
-                    "to_submap": loop.m,
-                    "inliers": len(loop),
-                    "icp_fitness": fitness,
-                }  # fmt: skip
-            )
-            log.info("chain %d re-localized against chain %d (submap %d-%d, %d inliers)",
-                     cid, pid, sid, loop.m, len(loop))  # fmt: skip
-            return T_world_i @ invert_T(chains[cid].graph.submap_pose(sid))
+            if self.mode == "rgbd":
+                T = self._place_rigid(chains, cid, sid, pid)
+            else:
+                T = self._place_sim3(chains, cid, sid, pid)
+            if T is not None:
+                return T
         return None
+
+    def _place_sim3(self, chains, cid: int, sid: int, pid: int) -> np.ndarray | None:
+        """Mono: ``T_world_chain`` of chain ``cid`` as a Sim(3) through chain ``pid`` (or None)."""
+        from gsslam.loop.chain_sim3 import dense_points, fit_chain_sim3, refine_dense
+        from gsslam.loop.relocalize import verified_against
+
+        det_p = self._detectors[pid]
+        c = self.cfg  # across a gap fewer matches survive in noisy mono point maps: the rejoin gates
+        cfg = dataclasses.replace(
+            c, min_inliers=c.rejoin_min_inliers, min_inlier_ratio=c.rejoin_min_inlier_ratio
+        )
+        rec_i = self._detectors[cid].record(sid)
+        found = verified_against(rec_i, det_p.records(), cfg, self.mode, self._reloc_rng)
+        if not found:
+            return None
+        pool = self._across.setdefault((cid, pid), [])
+        pool.extend(found)
+        gc, gp = chains[cid].graph, chains[pid].graph
+        S_new = {k: gc.submap_pose(k) for k in {lc.i for lc in pool}}
+        S_old = {k: gp.submap_pose(k) for k in {lc.m for lc in pool}}
+        depth_old = np.median([det_p.record(lc.m).median_depth * sim3_scale(S_old[lc.m]) for lc in pool])
+        thr = self.cfg.inlier_threshold_rel * depth_old  # earlier-chain units
+        fit = fit_chain_sim3(pool, S_new, S_old, thr, self.cfg.ransac_iterations, self._reloc_rng)
+        if fit is None or fit.inliers < self.cfg.rejoin_min_inliers:
+            return None
+        spacing = thr / 5  # earlier-chain units
+        pts_old = dense_points(chains[pid].encodings, {k: gp.submap_pose(k) for k in range(gp.num_submaps)},
+                               spacing)  # fmt: skip
+        S_all = {k: gc.submap_pose(k) for k in range(min(gc.num_submaps, len(chains[cid].encodings)))}
+        pts_new = dense_points(chains[cid].encodings, S_all, spacing / fit.scale)
+        fit, fitness = refine_dense(fit, pts_old, pts_new, thr, self.cfg.rejoin_min_fitness)
+        if fit is None:
+            log.info("chain %d: Sim(3) to chain %d not confirmed by the dense maps (fitness %s)", cid, pid,
+                     None if fitness is None else round(fitness, 3))  # fmt: skip
+            return None
+        best = found[0]
+        self.relocalized.append(
+            {
+                "chain": cid,
+                "submap": sid,
+                "to_chain": pid,
+                "to_submap": best.m,
+                "inliers": fit.inliers,
+                "icp_fitness": fitness,
+                "scale": fit.scale,
+                "loops": fit.loops,
+                "rms": fit.rms,
+            }  # fmt: skip
+        )
+        log.info("mono chain %d re-joined to chain %d by Sim(3) (%d loops, %d/%d inliers, scale %.3f)",
+                 cid, pid, fit.loops, fit.inliers, fit.pairs, fit.scale)  # fmt: skip
+        return chains[pid].T_world_chain @ fit.T_old_new
+
+    def _place_rigid(self, chains, cid: int, sid: int, pid: int) -> np.ndarray | None:
+        """RGB-D: ``T_world_chain`` of chain ``cid`` through chain ``pid`` (or None)."""
+        from gsslam.geometry import invert_T
+        from gsslam.loop.relocalize import relocalize
+
+        rec_i = self._detectors[cid].record(sid)
+        loop = relocalize(rec_i, self._detectors[pid].records(), self.cfg, self.mode, self._reloc_rng)
+        if loop is None:
+            return None
+        # in chain pid's frame: submap i of chain cid sits at T_p_i (RANSAC), refined by ICP against
+        # the dense points of every submap of chain pid
+        gp = chains[pid].graph
+        T_p_i, fitness = gp.submap_pose(loop.m) @ invert_T(loop.T_i_m), None
+        if sid < len(chains[cid].encodings) and chains[pid].encodings:
+            from gsslam.loop.relocalize import local_points, refine_rigid
+
+            thr = self.cfg.inlier_threshold_m  # ICP gate: the loop inlier distance (metres)
+            pts_i = local_points(chains[cid].encodings[sid], thr / 5)
+            pts_p = []
+            for k, enc in enumerate(chains[pid].encodings):
+                T = gp.submap_pose(k)
+                pts_p.append(local_points(enc, thr / 5) @ T[:3, :3].T + T[:3, 3])
+            pts_p = np.concatenate(pts_p)
+            if len(pts_i) >= 100 and len(pts_p) >= 100:
+                T_ref, fitness = refine_rigid(T_p_i, pts_p, pts_i, thr)
+                T_ref, _ = refine_rigid(T_ref, pts_p, pts_i, thr / 2)  # then a tighter gate
+                if fitness >= ICP_MIN_FITNESS and close_to(T_ref, T_p_i, 2 * thr):
+                    T_p_i = T_ref  # else the RANSAC estimate stays
+        T_world_i = chains[pid].T_world_chain @ T_p_i
+        self.relocalized.append(
+            {
+                "chain": cid,
+                "submap": sid,
+                "to_chain": pid,
+                "to_submap": loop.m,
+                "inliers": len(loop),
+                "icp_fitness": fitness,
+            }  # fmt: skip
+        )
+        log.info("chain %d re-localized against chain %d (submap %d-%d, %d inliers)",
+                 cid, pid, sid, loop.m, len(loop))  # fmt: skip
+        return T_world_i @ invert_T(chains[cid].graph.submap_pose(sid))
 
     def metrics(self) -> dict:
         """Loop counters summed over chains (``LoopStats.to_dict`` fields) and the loops in the graphs."""

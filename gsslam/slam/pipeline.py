@@ -18,8 +18,9 @@ Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the cu
 submaps and starts a new one at the current frame (its own graph; its world placement is the
 last tracked pose). A time gap longer than ``cfg.pipeline.max_time_gap_s`` is a ``gap`` event; a
 monocular run also starts a new chain there (it cannot bridge the gap), an RGB-D run lets tracking
-decide. Chains are not re-joined yet: the runner reports ATE per chain. Outputs are written by
-:mod:`gsslam.run` (the pipeline writes no files).
+decide. A new chain is re-joined to an earlier one when re-localization against it is verified
+(:meth:`gsslam.slam.loop_stage.LoopStage.relocalize`; until then the runner reports ATE per chain).
+Outputs are written by :mod:`gsslam.run` (the pipeline writes no files).
 """
 
 from __future__ import annotations
@@ -191,7 +192,7 @@ class Pipeline:
         if kf is not None and not self.chains[kf.chain].failed:
             chain = self.chains[kf.chain]
             try:
-                return chain.T_world_chain @ chain.graph.keyframe_pose(index)
+                return chain.world_pose(chain.graph.keyframe_pose(index))
             except GsslamError:
                 pass
         return self.online_poses.get(index)
@@ -303,7 +304,7 @@ class Pipeline:
             self.loop_stage.after_submap(chain, cid, sid, enc, frames)
             self.stage_seconds["loops"] += time.perf_counter() - t0
             self._relocalize(chain, cid, sid, frames[-1].index)
-            self.last_pose = chain.T_world_chain @ chain.graph.keyframe_pose(frames[-1].index)
+            self.last_pose = chain.world_pose(chain.graph.keyframe_pose(frames[-1].index))
         except GsslamError as e:
             # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
             # was and continue with a new chain that starts at this submap's last keyframe.
@@ -444,7 +445,7 @@ class Pipeline:
         for idx, kf in self.keyframes.items():
             chain = self.chains[kf.chain]
             try:
-                out[idx] = chain.T_world_chain @ chain.graph.keyframe_pose(idx)
+                out[idx] = chain.world_pose(chain.graph.keyframe_pose(idx))
             except GsslamError as e:
                 log.warning("keyframe %d has no pose: %s", idx, e)
         for chain in self.chains:  # a chain that never got a submap: its origin keyframe only
@@ -509,7 +510,8 @@ class Pipeline:
         kf = self.keyframes.get(ref)
         if kf is None or not self.monocular:
             return T_ref_cur
-        s = sim3_scale(self.chains[kf.chain].graph.submap_pose(kf.submap))
+        chain = self.chains[kf.chain]
+        s = chain.scale * sim3_scale(chain.graph.submap_pose(kf.submap))
         T = T_ref_cur.copy()
         T[:3, 3] *= s
         return T

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsslam.geometry import invert_T
+from gsslam.geometry import compose_rigid, invert_T
 
 
 @dataclass
@@ -48,7 +48,7 @@ class GraphEvent:
 
     def keyframe_pose(self, frame_index: int) -> np.ndarray:
         """Current ``T_world_cam`` [4, 4] of a keyframe, in the output world."""
-        return self.T_world_chain @ self.graph.keyframe_pose(frame_index)
+        return compose_rigid(self.T_world_chain, self.graph.keyframe_pose(frame_index))
 
     def add_keyframe_pose_prior(
         self,
@@ -59,7 +59,7 @@ class GraphEvent:
         name: str | None = None,
     ) -> int:
         """A prior on a keyframe's pose (expressed on its submap's variable); returns the factor handle."""
-        T_chain_cam = invert_T(self.T_world_chain) @ np.asarray(T_world_cam, float)
+        T_chain_cam = compose_rigid(invert_T(self.T_world_chain), np.asarray(T_world_cam, float))
         return self.graph.add_keyframe_pose_prior(frame_index, T_chain_cam, rot_sigma, trans_sigma, name)
 
 

@@ -33,6 +33,7 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
 from gsslam.run.checkpoint import (
+    CheckpointError,
     dataset_identity,
     load_checkpoint,
     remove_checkpoints,
@@ -257,13 +258,18 @@ class _Checkpoints:
         self.out, self.every, self.identity = out, every, identity
         self.last_submaps = submaps
         self.written: list[dict] = []
+        self.error: str | None = None  # why this run cannot be checkpointed (it goes on without)
 
     def after_frame(self, pipe: Pipeline, position: dict, final: bool = False) -> None:
-        if self.every <= 0:
+        if self.every <= 0 or self.error is not None:
             return
         n = _submaps(pipe)
         if final or n >= self.last_submaps + self.every:
-            self.written.append(save_checkpoint(self.out, pipe, position, self.identity))
+            try:
+                self.written.append(save_checkpoint(self.out, pipe, position, self.identity))
+            except CheckpointError as e:
+                self.error = str(e)
+                log.warning("%s; the run goes on without checkpoints", e)
             self.last_submaps = n
 
     def summary(self) -> dict:
@@ -274,6 +280,7 @@ class _Checkpoints:
             "last": w[-1]["name"] if w else None,
             "bytes_last": w[-1]["bytes"] if w else 0,
             "seconds_total": sum(c["seconds"] for c in w),
+            "error": self.error,
         }
 
 

@@ -60,10 +60,10 @@ class StateEncoder:
         self.resources: dict[int, str] = {}  # id(resource) -> attribute path where first met
 
     def encode(self, o: Any, path: str = "root") -> Any:
+        if isinstance(o, np.generic):  # before float: numpy.float64 is a float subclass
+            return {"$": "npscalar", "dtype": o.dtype.str, "v": o.item()}
         if isinstance(o, _PRIMITIVE):
             return o
-        if isinstance(o, np.generic):
-            return {"$": "npscalar", "dtype": o.dtype.str, "v": o.item()}
         if id(o) in self.resources:
             return {"$": "res", "name": self.resources[id(o)]}
         if isinstance(o, self.resource_types):

@@ -209,7 +209,7 @@ class PipelineConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
-    checkpoint_every: int = 5  # submaps between checkpoints of the run state (docs/run_folders.md); 0: none, not even on SIGINT/SIGTERM
+    checkpoint_every: int = 5  # submaps between checkpoints (docs/run_folders.md); 0: none, not on signals
 
 
 @dataclass(frozen=True)

@@ -194,7 +194,9 @@ class Backend:
             self._names[handle] = str(name)
         self._pending.append(handle)
         if spec is None:
-            self._unreplayable = self._unreplayable or f"{self.describe_factor(handle)} was added without a spec"
+            self._unreplayable = (
+                self._unreplayable or f"{self.describe_factor(handle)} was added without a spec"
+            )
         self._log.append(("factor", name, spec))
         return handle
 
@@ -205,7 +207,9 @@ class Backend:
         self._new_values.insert(key, value)
         self._types[key] = _type_name(value)
         if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3)):
-            self._unreplayable = self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {_type_name(value)}"
+            self._unreplayable = (
+                self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {_type_name(value)}"
+            )
         self._log.append(("value", int(key), value))
 
     def has_value(self, key: int) -> bool:

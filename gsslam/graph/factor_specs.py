@@ -15,6 +15,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from gsslam.errors import GsslamError
 from gsslam.factors import (
     make_depth_prior_factor,
     make_flow_factor,
@@ -25,7 +26,6 @@ from gsslam.factors import (
     make_scale_prior_factor,
     make_submap_alignment_factor,
 )
-from gsslam.errors import GsslamError
 
 FactorSpec = tuple[str, tuple, dict]  # (kind, positional args, keyword args), plain data only
 

@@ -99,7 +99,8 @@ def _classes() -> tuple[list[type], tuple[type, ...]]:
     ]  # fmt: skip
     resources = (
         config.Config, config.FlowConfig, config.KeyframeConfig, config.EncoderConfig, config.GraphConfig,
-        config.MapperConfig, config.LoopConfig, config.PipelineConfig, config.RunConfig, DISFlow, FarnebackFlow,
+        config.MapperConfig, config.LoopConfig, config.PipelineConfig, config.RunConfig,
+        DISFlow, FarnebackFlow,
     )  # fmt: skip
     import sys
 
@@ -112,7 +113,15 @@ def _classes() -> tuple[list[type], tuple[type, ...]]:
         from gsslam.mapping.state import MapState
         from gsslam.slam.map_stage import MapStage
 
-        classes += [MapStage, GaussianMapper, MapState, DensifyStrategy, GaussianModel, Keyframe, Registration]
+        classes += [
+            MapStage,
+            GaussianMapper,
+            MapState,
+            DensifyStrategy,
+            GaussianModel,
+            Keyframe,
+            Registration,
+        ]
     return classes, resources
 
 
@@ -157,7 +166,10 @@ def save_checkpoint(out: Path, pipe, position: dict, identity: dict) -> dict:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
-        _write_file(tmp / "state.json", dumps({"pipeline": tree, "resources": sorted(enc.resources.values())}).encode())
+        _write_file(
+            tmp / "state.json",
+            dumps({"pipeline": tree, "resources": sorted(enc.resources.values())}).encode(),
+        )
         with open(tmp / "arrays.npz", "wb") as fh:
             np.savez(fh, **enc.arrays)
             fh.flush()
@@ -223,7 +235,9 @@ def read_manifest(out: Path) -> tuple[Path, dict]:
         folder = root / name
         manifest = json.loads((folder / "manifest.json").read_text())
     except (OSError, ValueError, KeyError, TypeError) as e:
-        raise CheckpointError(f"the checkpoint in {root} is unreadable ({e}); rerun without --resume") from None
+        raise CheckpointError(
+            f"the checkpoint in {root} is unreadable ({e}); rerun without --resume"
+        ) from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise CheckpointError(f"{folder} is not a gsslam checkpoint; rerun without --resume")
     if manifest.get("version") != VERSION:
@@ -234,7 +248,9 @@ def read_manifest(out: Path) -> tuple[Path, dict]:
     for f in FILES:
         expected = (manifest.get("files") or {}).get(f)
         if not (folder / f).is_file() or _sha256(folder / f) != expected:
-            raise CheckpointError(f"{folder / f} is missing or corrupt (hash mismatch); rerun without --resume")
+            raise CheckpointError(
+                f"{folder / f} is missing or corrupt (hash mismatch); rerun without --resume"
+            )
     return folder, manifest
 
 

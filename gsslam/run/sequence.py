@@ -200,9 +200,11 @@ def run_dataset(
     }
     with RunFolder(out, overwrite=overwrite, resume=resume):
         pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
-        start, done, seconds_before = 0, 0, 0.0
+        start, done, seconds_before, load_seconds = 0, 0, 0.0, None
         if resume:
+            t_load = time.perf_counter()
             pipe, position = load_checkpoint(out, pipe, identity)
+            load_seconds = time.perf_counter() - t_load  # reading + the graphs' replay
             start, done = int(position["next_frame"]), int(position["frames_done"])
             seconds_before = float(position["seconds"])
             prov = {**prov, "resumed_from_frame": start}
@@ -239,7 +241,10 @@ def run_dataset(
             wall = seconds_before + time.perf_counter() - t0
             if stages is not None:
                 stages("outputs", 0, 1)
-            extra = {"resumed_from_frame": start if resume else None, "checkpoints": ckpt.summary()}
+            extra = {
+                "resumed_from_frame": start if resume else None,
+                "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
+            }
             result.metrics = write_outputs(
                 pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages, extra=extra
             )

@@ -87,7 +87,11 @@ class StateEncoder:
                 "v": [self.encode(o[k], f"{path}[{k!r}]") for k in keys],
             }
         if isinstance(o, (set, frozenset)):
-            return {"$": "set", "id": ref, "v": [self.encode(v, f"{path}<item>") for v in sorted(o, key=repr)]}
+            return {
+                "$": "set",
+                "id": ref,
+                "v": [self.encode(v, f"{path}<item>") for v in sorted(o, key=repr)],
+            }
         if isinstance(o, np.ndarray):
             return {"$": "nd", "id": ref, "a": self._array(o, path)}
         if isinstance(o, np.random.Generator):

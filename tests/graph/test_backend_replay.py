@@ -55,7 +55,9 @@ def test_a_factor_without_spec_makes_the_log_unreplayable():
     g.update()
     g.backend.replay_log()  # fine so far
     noise = gtsam.noiseModel.Isotropic.Sigma(7, 0.1)
-    g.backend.add_factor(gtsam.PriorFactorSimilarity3(gtsam.symbol("s", 0), gtsam.Similarity3(), noise), "mine")
+    g.backend.add_factor(
+        gtsam.PriorFactorSimilarity3(gtsam.symbol("s", 0), gtsam.Similarity3(), noise), "mine"
+    )
     with pytest.raises(BackendError, match="without a spec"):
         g.backend.replay_log()
 

@@ -88,7 +88,9 @@ def test_sigkill_then_resume_gives_the_uninterrupted_run(tmp_path):
     ma, mb = _metrics(full), _metrics(killed)
     for key in ("psnr_keyframes", "psnr_other", "psnr_keyframes_native"):
         assert abs(ma["mapper"][key] - mb["mapper"][key]) <= 0.1, key
-    assert mb["resumed_from_frame"] >= at and mb["provenance"]["resumed_from_frame"] == mb["resumed_from_frame"]
+    assert (
+        mb["resumed_from_frame"] >= at and mb["provenance"]["resumed_from_frame"] == mb["resumed_from_frame"]
+    )
     assert mb["frames"] == ma["frames"] == 40
     assert not (killed / CHECKPOINT_DIR).exists()
 

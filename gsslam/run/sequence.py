@@ -322,8 +322,8 @@ class _DeferredInterrupt:
             self._deliver(self.signum, None)
 
     def _deliver(self, signum: int, frame) -> None:
-        self._restore()
         previous = self._previous.get(signum)
+        self._restore()
         if callable(previous):
             previous(signum, frame)
         raise KeyboardInterrupt

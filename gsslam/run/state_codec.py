@@ -93,6 +93,9 @@ class StateEncoder:
                 "v": [self.encode(v, f"{path}<item>") for v in sorted(o, key=repr)],
             }
         if isinstance(o, np.ndarray):
+            u8, recipe = _as_uint8(o)
+            if u8 is not None:  # an 8-bit image as float: stored as its bytes (exact, 4x smaller)
+                return {"$": "nd", "id": ref, "a": self._array(u8, path), "u8": recipe}
             return {"$": "nd", "id": ref, "a": self._array(o, path)}
         if isinstance(o, np.random.Generator):
             state = o.bit_generator.state
@@ -207,7 +210,10 @@ class StateDecoder:
         if kind == "set":
             return self._keep(node, {self._decode(v) for v in node["v"]})
         if kind == "nd":
-            return self._keep(node, np.array(self._arr(node["a"])))
+            a = np.array(self._arr(node["a"]))
+            if node.get("u8") is not None:
+                a = _U8_RECIPES[node["u8"]](a)
+            return self._keep(node, a)
         if kind == "npgen":
             g = np.random.Generator(np.random.PCG64())
             g.bit_generator.state = node["state"]
@@ -258,6 +264,28 @@ class StateDecoder:
         for k, v in node["state"].items():
             object.__setattr__(obj, k, self._decode(v))
         return obj
+
+
+# how 8-bit images become float32 in gsslam (the loaders multiply, Frame.from_arrays divides)
+_U8_RECIPES = {
+    "mul": lambda u: u.astype(np.float32) * np.float32(1.0 / 255.0),
+    "div": lambda u: u.astype(np.float32) / np.float32(255.0),
+}
+
+
+def _as_uint8(a: np.ndarray) -> tuple[np.ndarray | None, str | None]:
+    """``a`` (float32) as uint8 + the recipe that gives back exactly ``a`` (images from 8-bit files)."""
+    if a.dtype != np.float32 or a.size < 4096:
+        return None, None
+    with np.errstate(invalid="ignore"):
+        u = np.rint(a * np.float32(255.0))
+    if not (np.isfinite(u).all() and u.min() >= 0 and u.max() <= 255):
+        return None, None
+    u8 = u.astype(np.uint8)
+    for name, recipe in _U8_RECIPES.items():
+        if np.array_equal(recipe(u8), a):
+            return u8, name
+    return None, None
 
 
 def _torch_module():

@@ -73,3 +73,14 @@ def test_a_class_outside_the_registry_is_never_constructed():
     tree["cls"] = "subprocess.Popen"
     with pytest.raises(StateCodecError, match="not allowed"):
         StateDecoder([Node], {}, lambda n: None).decode(tree)
+
+
+def test_8bit_images_are_stored_as_bytes_and_come_back_exactly():
+    u8 = np.random.default_rng(0).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    img = u8.astype(np.float32) / np.float32(255.0)
+    other = img.copy()
+    other[0, 0, 0] += 1e-3  # not an 8-bit value: stored as float
+    back, enc = _round_trip(Node([img, other], {}), [Node])
+    assert [a.dtype for a in enc.arrays.values()] == [np.uint8, np.float32]
+    for a, b in zip(back.leaves, [img, other]):
+        assert a.dtype == np.float32 and np.array_equal(a, b)

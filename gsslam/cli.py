@@ -112,6 +112,9 @@ def run_cmd(
         Optional[list[str]], typer.Option("--set", help="Override, e.g. mapper.iterations=20")
     ] = None,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="Use only the first N frames.")] = None,
+    start_frame: Annotated[
+        int, typer.Option(min=0, help="Skip the first N frames (--max-frames counts from there).")
+    ] = 0,
     intrinsics: Annotated[Optional[Path], typer.Option(help="Intrinsics YAML (images dataset).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
     overwrite: Annotated[
@@ -152,7 +155,8 @@ def run_cmd(
     try:
         result = run_sequence(
             path, dataset, cfg, out, max_frames=max_frames, progress=bar.frames if bar else False,
-            stages=bar.stage if bar else None, overwrite=overwrite, resume=resume, **ds_kwargs,
+            stages=bar.stage if bar else None, overwrite=overwrite, start_frame=start_frame, resume=resume,
+            **ds_kwargs,
         )  # fmt: skip
     finally:
         if bar is not None:
@@ -377,7 +381,9 @@ def batch_cmd(
 
 @bench_app.command("accuracy")
 def bench_accuracy(
-    suite: Annotated[str, typer.Option(help="Built-in suite: quick | standard | long | feedback.")] = "quick",
+    suite: Annotated[
+        str, typer.Option(help="Built-in suite: quick | standard | long | tracking | feedback.")
+    ] = "quick",
     jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam\\[batch]).")] = 1,
     address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,

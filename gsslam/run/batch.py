@@ -164,7 +164,10 @@ def _run_and_evaluate(spec: RunSpec, out: Path, status: dict) -> dict:
             _write_json(out / STATUS_FILE, {**status, "frames_done": done, "frames_total": total})
 
     # a run is re-executed only when it did not complete: its earlier attempt is replaced
-    run_sequence(path, s.dataset, cfg, out, max_frames=s.frames, progress=progress, overwrite=True, **kwargs)
+    run_sequence(
+        path, s.dataset, cfg, out, max_frames=s.frames, progress=progress, overwrite=True,
+        start_frame=s.start, **kwargs,
+    )  # fmt: skip
     gt_kwargs = dict(kwargs)
     if cfg.mode == "mono" and s.dataset in ("tum", "7scenes"):
         gt_kwargs.setdefault("with_depth", False)  # as the run opened it: same frames, same ground truth

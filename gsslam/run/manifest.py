@@ -4,7 +4,7 @@ A manifest is a YAML mapping::
 
     name: my-table                  # default: the file name
     defaults:                       # applied to every sequence / variant below
-      frames: 120                   # run frames [0, 120) (or [0, 120])
+      frames: 120                   # run frames [0, 120); [300, 420] runs frames 300..419
       set: [loop.enabled=true]      # overrides put before every variant's own
     sequences:
       - name: teddy                 # unique; names the run folders
@@ -52,7 +52,10 @@ class ManifestError(GsslamError):
 
 @dataclass(frozen=True)
 class SequenceSpec:
-    """One sequence to run: ``path`` as written (``None`` for a generated scene); ``frames`` = max frames."""
+    """One sequence to run: ``path`` as written (``None`` for a generated scene).
+
+    ``frames`` = how many frames to run (``None``: all), from frame ``start``.
+    """
 
     name: str
     dataset: str
@@ -61,6 +64,7 @@ class SequenceSpec:
     ground_truth: str | None = None
     frames: int | None = None
     kwargs: dict[str, Any] = field(default_factory=dict)
+    start: int = 0
 
 
 @dataclass(frozen=True)
@@ -99,6 +103,7 @@ class RunSpec:
             "mode": s.mode,
             "ground_truth": None if self.gt_path is None else str(self.gt_path),
             "frames": s.frames,
+            **({"start": s.start} if s.start else {}),  # absent at 0: older batches keep their fingerprints
             "kwargs": s.kwargs,
             "overrides": list(self.variant.overrides),
         }
@@ -196,18 +201,21 @@ def _check_name(name: Any, where: str) -> str:
     return name
 
 
-def _frames(value: Any, where: str) -> int | None:
+def _frames(value: Any, where: str) -> tuple[int, int | None]:
+    """``frames: N`` (the first N) or ``[START, STOP]`` (frames START..STOP-1) -> (start, count)."""
     if value is None:
-        return None
+        return 0, None
+    start = 0
     if isinstance(value, list | tuple):
-        if len(value) != 2 or value[0] != 0:
+        ok = len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+        if not ok or not 0 <= value[0] < value[1]:
             raise ManifestError(
-                f"{where}: frames must be N or [0, N]; a start frame other than 0 is not supported yet"
+                f"{where}: frames must be N or [START, STOP] with 0 <= START < STOP, got {value!r}"
             )
-        value = value[1]
+        start, value = value[0], value[1] - value[0]
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
         raise ManifestError(f"{where}: frames must be a positive integer, got {value!r}")
-    return value
+    return start, value
 
 
 def _overrides(value: Any, where: str) -> tuple[str, ...]:
@@ -242,10 +250,9 @@ def _sequences(items: Any, defaults: dict) -> list[SequenceSpec]:
             if mode not in (None, "mono", "rgbd"):
                 raise ManifestError(f"{where} ({name}): mode must be mono or rgbd, got {mode!r}")
             full = f"{name}_{mode}" if len(modes) > 1 else name
-            frames = _frames(d.get("frames", defaults.get("frames")), where)
-            out.append(
-                SequenceSpec(full, str(dataset), path, mode, d.get("ground_truth"), frames, dict(kwargs))
-            )
+            start, frames = _frames(d.get("frames", defaults.get("frames")), where)
+            gt = d.get("ground_truth")
+            out.append(SequenceSpec(full, str(dataset), path, mode, gt, frames, dict(kwargs), start))
     return out
 
 

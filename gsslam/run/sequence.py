@@ -30,6 +30,7 @@ import numpy as np
 
 from gsslam.config import Config, save_config, validate_config
 from gsslam.datasets import open_dataset
+from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
 from gsslam.run.checkpoint import (
@@ -143,6 +144,7 @@ def run_sequence(
     progress: bool | ProgressCallback = True,
     overwrite: bool = False,
     stages: StageProgress | None = None,
+    start_frame: int = 0,
     resume: bool = False,
     **dataset_kwargs: Any,
 ) -> RunResult:
@@ -152,14 +154,20 @@ def run_sequence(
     progress bar with it); ``True``/``False`` without a callback report nothing (the library never prints).
     The dataset is opened (and its files checked) before ``out`` is touched.
     ``stages``: a callback ``(stage, done, total)`` for the stages after tracking (batch refinement,
-    final pass, outputs). ``resume``: continue the run in ``out`` from its last checkpoint.
+    final pass, outputs).
+    ``start_frame``: skip the sequence's first frames (the run and ``max_frames`` count from there).
+    ``resume``: continue the run in ``out`` from its last checkpoint.
     """
     if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
         # a monocular run reads no depth, so frames that only lack a depth image are kept
         dataset_kwargs.setdefault("with_depth", False)
     ds = open_dataset(dataset_name, path, **dataset_kwargs)
+    if start_frame:
+        ds = FrameRange(ds, start_frame)
     callback = progress if callable(progress) else None
     prov = provenance(cfg, path)
+    if start_frame:
+        prov["start_frame"] = start_frame
     return run_dataset(
         ds, cfg, Path(out), max_frames=max_frames, progress=callback, stages=stages, overwrite=overwrite,
         provenance=prov, resume=resume,

@@ -67,7 +67,13 @@ def test_fingerprint_changes_with_what_decides_the_result(bundled_tum):
         return parse_manifest({"sequences": [s]}).runs([])[0].fingerprint()
 
     assert fp() == fp()
-    assert len({fp(), fp(frames=10), fp(mode="rgbd"), fp(kwargs={"max_dt": 0.01})}) == 4
+    assert fp(frames=10) == fp(frames=[0, 10])  # a start at 0 is the old spelling: same fingerprint
+    assert len({fp(), fp(frames=10), fp(frames=[5, 15]), fp(mode="rgbd"), fp(kwargs={"max_dt": 0.01})}) == 5
+
+
+def test_frames_range_sets_start_and_count():
+    m = _m(defaults={"frames": [30, 50]})
+    assert all((s.start, s.frames) == (30, 20) for s in m.sequences)
 
 
 def test_data_roots_env_and_resolution(tmp_path, monkeypatch):
@@ -86,7 +92,8 @@ def test_data_roots_env_and_resolution(tmp_path, monkeypatch):
         ({"sequences": []}, "non-empty"),
         ({"sequences": [{"name": "a"}]}, "'path' is required"),
         ({"sequences": [{"name": "a b", "path": "x"}]}, "letters, digits"),
-        ({"sequences": [{"name": "a", "path": "x", "frames": [5, 10]}]}, "start frame"),
+        ({"sequences": [{"name": "a", "path": "x", "frames": [10, 5]}]}, "START < STOP"),
+        ({"sequences": [{"name": "a", "path": "x", "frames": [-1, 5]}]}, "START < STOP"),
         ({"sequences": [{"name": "a", "path": "x", "mode": "stereo"}]}, "mono or rgbd"),
         ({"sequences": [{"name": "a", "path": "x", "typo": 1}]}, "unknown keys"),
         ({"sequences": [{"name": "a", "path": "x"}, {"name": "a", "path": "y"}]}, "unique"),

@@ -245,8 +245,11 @@ def read_manifest(out: Path) -> tuple[Path, dict]:
             f"{folder} is a version {manifest.get('version')} checkpoint; this gsslam reads version "
             f"{VERSION} only: rerun without --resume"
         )
+    files = manifest.get("files")
+    if not isinstance(files, dict) or not isinstance(manifest.get("position"), dict):
+        raise CheckpointError(f"{folder}/manifest.json is malformed; rerun without --resume")
     for f in FILES:
-        expected = (manifest.get("files") or {}).get(f)
+        expected = files.get(f)
         if not (folder / f).is_file() or _sha256(folder / f) != expected:
             raise CheckpointError(
                 f"{folder / f} is missing or corrupt (hash mismatch); rerun without --resume"
@@ -303,4 +306,13 @@ def load_checkpoint(out: Path, fresh_pipe, identity: dict) -> tuple[Any, dict]:
         raise CheckpointError(f"{folder} does not decode: {e}; rerun without --resume") from None
     if type(pipe) is not type(fresh_pipe):
         raise CheckpointError(f"{folder} does not hold a pipeline; rerun without --resume")
-    return pipe, manifest["position"]
+    pos = manifest["position"]
+    try:
+        position = {
+            "next_frame": int(pos["next_frame"]),
+            "frames_done": int(pos["frames_done"]),
+            "seconds": float(pos["seconds"]),
+        }
+    except (KeyError, TypeError, ValueError):
+        raise CheckpointError(f"{folder}/manifest.json: bad position {pos}; rerun without --resume") from None
+    return pipe, position

@@ -27,9 +27,9 @@ RUN = (
     "--set", "mapper.final_iterations_per_keyframe=2", "--set", "run.checkpoint_every=1",
 )  # fmt: skip
 FAST = (
-    "run", BUNDLED_TUM, "--mode", "rgbd", "--max-frames", "24", "--no-progress",
+    "run", BUNDLED_TUM, "--mode", "rgbd", "--max-frames", "40", "--no-progress",
     "--set", "mapper.enabled=false", "--set", "run.checkpoint_every=1",
-)  # fmt: skip
+)  # fmt: skip  # 40 frames: the first checkpoint (frame ~18) is well before the end
 
 
 def _trajectory(out: Path) -> np.ndarray:  # [N, 8] timestamp x y z qx qy qz qw
@@ -128,7 +128,7 @@ def test_resume_of_the_sigterm_checkpoint_finishes(interrupted, tmp_path):
     r = gsslam(*FAST, "--out", out, "--resume")
     assert r.returncode == 0, r.stderr
     m = _metrics(out)
-    assert m["frames"] == 24 and m["resumed_from_frame"] > 0 and m["interrupted"] is False
+    assert m["frames"] == 40 and m["resumed_from_frame"] > 0 and m["interrupted"] is False
 
 
 def test_resume_with_another_config_is_refused(interrupted, tmp_path):
@@ -208,3 +208,12 @@ def test_state_naming_a_foreign_class_is_refused(interrupted, tmp_path):
     mf.write_text(json.dumps(m))
     r = gsslam(*FAST, "--out", out, "--resume")
     assert_error(r, "not allowed", code=EXIT_USAGE)
+
+
+def test_malformed_manifest_is_refused(interrupted, tmp_path):
+    out = _copy(interrupted, tmp_path / "run")
+    mf = _latest(out) / "manifest.json"
+    m = json.loads(mf.read_text())
+    m["files"] = ["state.json"]
+    mf.write_text(json.dumps(m))
+    assert_error(gsslam(*FAST, "--out", out, "--resume"), "malformed", code=EXIT_USAGE)

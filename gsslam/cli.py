@@ -127,10 +127,15 @@ def run_cmd(
     viz: Annotated[
         Optional[str], typer.Option(help="Also record a viewer file: rerun (OUT/run.rrd).")
     ] = None,
+    resume: Annotated[
+        bool,
+        typer.Option(help="Continue the interrupted run in OUT from its last checkpoint (same arguments)."),
+    ] = False,
 ) -> None:
     """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT.
 
-    OUT must not hold another run (see --overwrite) and takes one run at a time (a lock file).
+    OUT must not hold another run (see --overwrite, --resume) and takes one run at a time (a lock file).
+    Every run.checkpoint_every submaps and on SIGINT/SIGTERM the run state is saved in OUT/checkpoint.
     """
     from gsslam.config import load_config
     from gsslam.run.sequence import run_sequence
@@ -150,7 +155,8 @@ def run_cmd(
     try:
         result = run_sequence(
             path, dataset, cfg, out, max_frames=max_frames, progress=bar.frames if bar else False,
-            stages=bar.stage if bar else None, overwrite=overwrite, start_frame=start_frame, **ds_kwargs,
+            stages=bar.stage if bar else None, overwrite=overwrite, start_frame=start_frame, resume=resume,
+            **ds_kwargs,
         )  # fmt: skip
     finally:
         if bar is not None:

@@ -211,6 +211,11 @@ class PipelineConfig:
 
 
 @dataclass(frozen=True)
+class RunConfig:
+    checkpoint_every: int = 5  # submaps between checkpoints (docs/run_folders.md); 0: none, not on signals
+
+
+@dataclass(frozen=True)
 class Config:
     mode: str = "mono"  # "mono" | "rgbd"
     flow: FlowConfig = field(default_factory=FlowConfig)
@@ -220,6 +225,7 @@ class Config:
     mapper: MapperConfig = field(default_factory=MapperConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+    run: RunConfig = field(default_factory=RunConfig)
     seed: int = 0
 
 
@@ -504,6 +510,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "pipeline.max_time_gap_s": POS,
     "pipeline.pose_outlier_max_dev_m": NONNEG,
     "pipeline.pose_outlier_max_dev_deg": NONNEG,
+    "run.checkpoint_every": _ge(0),
 }
 
 

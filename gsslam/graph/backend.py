@@ -7,6 +7,11 @@ user swaps sensors in by adding their own factors; see docs/graph.md. Every fact
 :meth:`Backend.remove_factors` removes factors by handle (e.g. a rejected loop) through iSAM2's
 ``removeFactorIndices`` at the next update.
 
+Replay (checkpoints): a factor added with its *spec* (:mod:`gsslam.graph.factor_specs`, plain data) is
+recorded with every value, removal, update and batch refinement in :meth:`Backend.replay_log`, in
+order; :meth:`Backend.replay` applies such a log to a fresh backend, which rebuilds the identical iSAM2
+state (same handles, same rejections). A factor added without a spec makes the log unreplayable.
+
 The backend cannot be poisoned: :meth:`Backend.update` rejects a buffered factor that names a variable
 without a value, and when iSAM2 itself fails (an indeterminate system, a factor that throws) it rolls
 iSAM2 back to the last good state, finds the buffered factors to blame (each one whose removal makes the
@@ -120,18 +125,65 @@ class Backend:
         self._names: dict[int, str] = {}  # handle -> user-given name
         self._estimate: gtsam.Values | None = None
         self.last_result: gtsam.ISAM2Result | None = None
+        self.config = None  # the GraphConfig it was made from (from_config), for a replay
+        self._log: list[tuple] = []  # every change, in order, as plain data (see replay_log)
+        self._unreplayable: str | None = None  # why the log cannot rebuild this backend
 
     @classmethod
     def from_config(cls, cfg) -> Backend:  # cfg: gsslam.config.GraphConfig
         from gsslam.graph.noise import isam_params
 
-        return cls(isam_params(cfg), cfg.batch_max_iterations)
+        backend = cls(isam_params(cfg), cfg.batch_max_iterations)
+        backend.config = cfg
+        return backend
+
+    # -- replay -----------------------------------------------------------------------------
+    def replay_log(self) -> list[tuple]:
+        """Every change so far as plain data: ``("factor", name, spec)``, ``("value", key, value)``,
+        ``("remove", handles)``, ``("update", extra_iterations)``, ``("batch", max_iterations)``.
+
+        Raises :class:`BackendError` when a factor was added without a spec (e.g. by a plugin) or the
+        backend was not made by :meth:`from_config`.
+        """
+        if self._unreplayable is not None:
+            raise BackendError(f"this graph cannot be checkpointed: {self._unreplayable}")
+        if self.config is None:
+            raise BackendError("this graph cannot be checkpointed: its backend was not made from a config")
+        return list(self._log)
+
+    def replay(self, log: list[tuple], build) -> None:
+        """Apply a :meth:`replay_log` to this (fresh) backend; ``build(spec)`` makes each factor.
+
+        Updates and batch refinements that were rejected or failed in the original run fail here in
+        the same way and are passed over, as the original caller did.
+        """
+        for op in log:
+            kind = op[0]
+            if kind == "factor":
+                self.add_factor(build(op[2]), op[1], spec=op[2])
+            elif kind == "value":
+                self.add_value(int(op[1]), op[2])
+            elif kind == "remove":
+                self.remove_factors([int(h) for h in op[1]])
+            elif kind == "update":
+                try:
+                    self.update(int(op[1]))
+                except RejectedError:
+                    pass
+            elif kind == "batch":
+                try:
+                    self.refine_batch(op[1])
+                except BackendError:
+                    pass
+            else:
+                raise BackendError(f"unknown operation {kind!r} in a replay log")
 
     # -- building ---------------------------------------------------------------------------
-    def add_factor(self, factor: gtsam.NonlinearFactor, name: str | None = None) -> int:
+    def add_factor(self, factor: gtsam.NonlinearFactor, name: str | None = None, spec=None) -> int:
         """Buffer ``factor`` for the next :meth:`update`; returns its handle.
 
         ``name`` appears in every message about the factor (e.g. when :meth:`update` rejects it).
+        ``spec``: the factor as plain data (:mod:`gsslam.graph.factor_specs`), for :meth:`replay`.
         """
         if factor is None or not isinstance(factor, gtsam.NonlinearFactor):
             raise BackendError(f"add_factor needs a gtsam factor, got {type(factor).__name__}")
@@ -141,6 +193,11 @@ class Backend:
         if name:
             self._names[handle] = str(name)
         self._pending.append(handle)
+        if spec is None:
+            self._unreplayable = (
+                self._unreplayable or f"{self.describe_factor(handle)} was added without a spec"
+            )
+        self._log.append(("factor", name, spec))
         return handle
 
     def add_value(self, key: int, value) -> None:
@@ -149,6 +206,11 @@ class Backend:
             raise BackendError(f"variable {gtsam.DefaultKeyFormatter(key)} already has a value")
         self._new_values.insert(key, value)
         self._types[key] = _type_name(value)
+        if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3)):
+            self._unreplayable = (
+                self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {_type_name(value)}"
+            )
+        self._log.append(("value", int(key), value))
 
     def has_value(self, key: int) -> bool:
         return key in self._types
@@ -164,6 +226,7 @@ class Backend:
                 self._to_remove.append(h)
             else:
                 self._pending.remove(h)
+        self._log.append(("remove", [int(h) for h in handles]))
 
     def describe_factor(self, handle: int) -> str:
         """``factor 'name' (Type on s0,s1)`` or ``factor #12 (Type on s0,s1)`` (for messages)."""
@@ -178,6 +241,7 @@ class Backend:
         Raises :class:`RejectedError` after applying everything else when some buffered factors or
         values had to be dropped (see the module doc); the backend stays usable.
         """
+        self._log.append(("update", int(extra_iterations)))
         if (
             not self._pending
             and not self._to_remove
@@ -360,6 +424,7 @@ class Backend:
 
         Pending factors and values are included. Handles stay valid. Returns the final error.
         """
+        self._log.append(("batch", max_iterations))
         rejected = self._reject_missing_keys()
         handles = sorted(self._factors)
         graph = gtsam.NonlinearFactorGraph()

@@ -8,11 +8,14 @@ import numpy as np
 from gsslam.config import GraphConfig
 
 
+def gauge_prior_sigmas(cfg: GraphConfig) -> np.ndarray:  # [7]
+    """Sigmas of the Sim(3) prior on the first submap: rotation, translation AND scale (chart order)."""
+    return np.array([cfg.prior_rot_sigma] * 3 + [cfg.prior_trans_sigma] * 3 + [cfg.prior_scale_sigma])
+
+
 def gauge_prior_noise(cfg: GraphConfig) -> gtsam.noiseModel.Diagonal:
     """Sim(3) prior on the first submap: rotation, translation AND scale fixed (chart order)."""
-    return gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([cfg.prior_rot_sigma] * 3 + [cfg.prior_trans_sigma] * 3 + [cfg.prior_scale_sigma])
-    )
+    return gtsam.noiseModel.Diagonal.Sigmas(gauge_prior_sigmas(cfg))
 
 
 def flow_kwargs(cfg: GraphConfig) -> dict:

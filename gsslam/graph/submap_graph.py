@@ -25,22 +25,11 @@ import numpy as np
 
 from gsslam.config import GraphConfig
 from gsslam.errors import GsslamError
-from gsslam.factors import (
-    make_depth_prior_factor,
-    make_flow_factor,
-    make_keyframe_pose_factor,
-    make_point_factor,
-    make_registration_factor,
-    make_scale_factor,
-    make_scale_prior_factor,
-    make_submap_alignment_factor,
-    median_depth_ratio,
-    to_gtsam,
-    to_matrix,
-)
+from gsslam.factors import median_depth_ratio, to_gtsam, to_matrix
 from gsslam.graph.backend import Backend
+from gsslam.graph.factor_specs import build_factor, spec
 from gsslam.graph.keys import submap_key
-from gsslam.graph.noise import flow_kwargs, gauge_prior_noise
+from gsslam.graph.noise import flow_kwargs, gauge_prior_sigmas
 from gsslam.types import Correspondences, SubmapEncoding
 
 log = logging.getLogger(__name__)
@@ -79,11 +68,7 @@ class SubmapGraph:
         key = submap_key(i)
         if i == 0:
             self.backend.add_value(key, to_gtsam(np.eye(4), "sim3"))
-            import gtsam
-
-            self.backend.add_factor(
-                gtsam.PriorFactorSimilarity3(key, gtsam.Similarity3(), gauge_prior_noise(self.cfg))
-            )
+            self._add(spec("sim3_prior", key, gauge_prior_sigmas(self.cfg)))
         else:
             prev = self._subs[-1]
             if enc.frame_indices[0] != prev.frame_indices[-1]:
@@ -107,10 +92,8 @@ class SubmapGraph:
         Z = prev.T_local_cam[-1]
         E = Z @ np.diag([ratio, ratio, ratio, 1.0])
         self.backend.add_value(b, to_gtsam(self.submap_pose(i - 1) @ E, "sim3"))
-        self.backend.add_factor(
-            make_submap_alignment_factor(a, b, Z, cfg.align_rot_sigma, cfg.align_trans_sigma)
-        )
-        self.backend.add_factor(make_scale_factor(a, b, np.log(ratio), cfg.scale_sigma))
+        self._add(spec("submap_alignment", a, b, Z, cfg.align_rot_sigma, cfg.align_trans_sigma))
+        self._add(spec("scale", a, b, float(np.log(ratio)), cfg.scale_sigma))
         if prev.points_cam.shape[1:3] == enc.points_cam.shape[1:3]:
             Xa = prev.points_cam[-1].reshape(-1, 3)
             Xb = enc.points_cam[0].reshape(-1, 3)
@@ -124,11 +107,11 @@ class SubmapGraph:
                 # come from the same local poses), so each point gets sigma * sqrt(N). Per-point sigmas
                 # made the chain so stiff that loops could not bend it (see docs/graph.md).
                 sigma = cfg.adjacency_sigma_m * np.sqrt(len(idx))
-                self.backend.add_factor(make_point_factor(a, b, Xa_local, Xb[idx], sigma))
+                self._add(spec("point", a, b, Xa_local, Xb[idx], float(sigma)))
         else:
             log.warning("submap %d: point maps of the shared frame differ in size; no adjacency points", i)
         if not self.monocular:
-            self.backend.add_factor(make_scale_prior_factor(b, 1.0, cfg.prior_scale_sigma))
+            self._add(spec("scale_prior", b, 1.0, cfg.prior_scale_sigma))
 
     # -- measurements ------------------------------------------------------------------------
     def owner(self, frame_index: int) -> tuple[int, int]:
@@ -170,12 +153,11 @@ class SubmapGraph:
             # points, the factor gets the information of flow_effective_points matches, so that a
             # chain of flow factors stays as compliant as its real error and a loop can bend it.
             weight = weight * min(1.0, self.cfg.flow_effective_points / len(idx))
-        factor = make_flow_factor(
-            submap_key(ia), submap_key(ib), corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K,
+        return self._add(spec(
+            "flow", submap_key(ia), submap_key(ib), corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K,
             weight=weight, group="sim3",
             L_a=self._subs[ia].T_local_cam[ja], L_b=self._subs[ib].T_local_cam[jb], **flow_kwargs(self.cfg),
-        )  # fmt: skip
-        return self.backend.add_factor(factor)
+        ))  # fmt: skip
 
     def add_registration(
         self, submap: int, positions: list[int], T_chain_cam: np.ndarray, information: np.ndarray
@@ -188,10 +170,9 @@ class SubmapGraph:
         U, _, Vt = np.linalg.svd(L[:, :3, :3])
         L[:, :3, :3] = U @ Vt
         try:
-            factor = make_registration_factor(submap_key(submap), L, T_chain_cam, information, "sim3")
+            return self._add(spec("registration", submap_key(submap), L, T_chain_cam, information, "sim3"))
         except ValueError as e:
             raise GraphError(f"registration on submap {submap}: {e}") from e
-        return self.backend.add_factor(factor)
 
     def add_loop(self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None) -> int:
         """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames."""
@@ -202,10 +183,9 @@ class SubmapGraph:
             raise GraphError("a loop needs two different submaps")
         sig = self.cfg.loop_sigma_m if sigma is None else sigma
         try:
-            factor = make_point_factor(submap_key(i), submap_key(m), X_i, X_m, sig)
+            return self._add(spec("point", submap_key(i), submap_key(m), X_i, X_m, sig))
         except ValueError as e:
             raise GraphError(f"loop {i}-{m}: {e}") from e
-        return self.backend.add_factor(factor)
 
     def add_depth_prior(
         self, frame_index: int, uv: np.ndarray, depth: np.ndarray, K: np.ndarray
@@ -230,8 +210,7 @@ class SubmapGraph:
         ok = np.isfinite(z) & (z > 0) & np.isfinite(depth) & (depth > 0)
         if ok.sum() < 3:
             return None
-        factor = make_depth_prior_factor(submap_key(i), z[ok], depth[ok], self.cfg.depth_prior_sigma)
-        return self.backend.add_factor(factor)
+        return self._add(spec("depth_prior", submap_key(i), z[ok], depth[ok], self.cfg.depth_prior_sigma))
 
     def keyframe_anchor(self, frame_index: int) -> tuple[int, np.ndarray]:
         """``(key, T_local_cam)``: the submap variable a keyframe's pose is expressed on, and its fixed
@@ -252,11 +231,15 @@ class SubmapGraph:
         See :mod:`gsslam.factors.keyframe_pose`; ``name`` appears in the backend's messages.
         """
         key, L = self.keyframe_anchor(frame_index)
+        name = name or f"keyframe pose prior x{frame_index}"
         try:
-            factor = make_keyframe_pose_factor(key, L, T_world_cam, rot_sigma, trans_sigma, "sim3")
+            return self._add(spec("keyframe_pose", key, L, T_world_cam, rot_sigma, trans_sigma, "sim3"), name)
         except ValueError as e:
             raise GraphError(f"keyframe {frame_index} pose prior: {e}") from e
-        return self.backend.add_factor(factor, name or f"keyframe pose prior x{frame_index}")
+
+    def _add(self, s, name: str | None = None) -> int:
+        """Build the factor of spec ``s`` and buffer it with its spec (a checkpoint can rebuild it)."""
+        return self.backend.add_factor(build_factor(s), name, spec=s)
 
     def remove_factor(self, handle: int) -> None:
         self.backend.remove_factors([handle])

@@ -2,7 +2,8 @@
 
 - :class:`RunFolder` creates ``--out``, takes its lock and checks it. A folder that already holds
   gsslam's files (:data:`OWN_FILES`, :data:`OWN_DIRS`) is refused unless ``overwrite`` (which removes
-  only those files, never anything else in the folder).
+  only those files, never anything else in the folder), or ``resume`` (the run continues from its
+  checkpoint, :mod:`gsslam.run.checkpoint`, and keeps its files until it rewrites them).
 - The lock is ``.gsslam.lock`` held with ``flock`` for the whole run: a second run into the same
   folder is refused while the first one lives. The kernel releases the lock when a process dies
   (even by SIGKILL), so a lock file left behind never blocks the next run.
@@ -33,7 +34,7 @@ OWN_FILES = (
     "run.rrd",  # gsslam run --viz rerun / gsslam view
     "ate.png",  # gsslam demo
 )
-OWN_DIRS = ("renders", "keyframes", "export_colmap", "export_nerfstudio", "export_inria")
+OWN_DIRS = ("renders", "keyframes", "export_colmap", "export_nerfstudio", "export_inria", "checkpoint")
 LOCK_NAME = ".gsslam.lock"
 
 
@@ -42,11 +43,15 @@ class RunFolderError(GsslamError):
 
 
 class RunFolder:
-    """``with RunFolder(out, overwrite=...) as folder:`` the folder is ours until the block ends."""
+    """``with RunFolder(out, overwrite=...) as folder:`` the folder is ours until the block ends.
 
-    def __init__(self, path: str | Path, overwrite: bool = False) -> None:
+    ``resume``: the folder holds the run to continue; its files are kept.
+    """
+
+    def __init__(self, path: str | Path, overwrite: bool = False, resume: bool = False) -> None:
         self.path = Path(path)
         self.overwrite = overwrite
+        self.resume = resume
         self._lock_fd: int | None = None
 
     # ---- the folder ------------------------------------------------------------------------------
@@ -74,7 +79,7 @@ class RunFolder:
 
     def _check_previous_run(self) -> None:
         previous = self.own_entries()
-        if not previous:
+        if not previous or self.resume:
             return
         for p in previous:  # generic names: never replace or remove a file gsslam did not write
             if not _written_by_gsslam(p):

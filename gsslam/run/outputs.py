@@ -105,6 +105,7 @@ def write_outputs(
     before_batch: dict[int, np.ndarray] | None = None,
     provenance: dict | None = None,
     progress: StageProgress | None = None,
+    extra: dict | None = None,
 ) -> dict:
     """Write the trajectories, ``metrics.json`` (partial), the plot, the map outputs, then ``metrics.json``
     complete; returns the metrics.
@@ -167,6 +168,7 @@ def write_outputs(
         "mapper": None,
         "loop_closure": pipe.loop_stage.metrics(),
         "provenance": dict(provenance or {}),
+        **(extra or {}),
     }
     metrics = {"status": "partial", **metrics}
     if pipe.map_stage is not None:

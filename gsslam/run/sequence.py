@@ -8,11 +8,18 @@ FPS, peak RSS, tracking-loss events, provenance) and ``trajectory.png``. They ar
 estimated so far. The folder is a :class:`gsslam.run.folder.RunFolder`: locked for the run, refused
 when it holds another run (unless ``overwrite``). ``metrics.json`` is written first with
 ``"status": "running"`` and rewritten as the outputs progress (see :mod:`gsslam.run.outputs`).
+
+Checkpoints (:mod:`gsslam.run.checkpoint`): every ``run.checkpoint_every`` new submaps, and when
+SIGINT/SIGTERM arrives during the frames (the current frame is finished first; a second signal
+interrupts at once), the whole run state is written to ``out/checkpoint/``; ``resume=True`` continues
+from the last complete one. A run that finishes removes its checkpoint.
 """
 
 from __future__ import annotations
 
 import logging
+import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,6 +33,14 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
+from gsslam.run.checkpoint import (
+    CheckpointError,
+    dataset_identity,
+    load_checkpoint,
+    remove_checkpoints,
+    resume_config_hash,
+    save_checkpoint,
+)
 from gsslam.run.folder import RunFolder
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
@@ -110,8 +125,12 @@ class RunResult:
             rows.append(("chains", "not joined in one world frame: ATE per chain, no overall number"))
         elif m.get("chains", 0) > 1:
             rows.append(("chains", f"{m['chains']} chains re-localized into one world frame"))
+        if m.get("resumed_from_frame") is not None:
+            rows.append(("resumed", f"from the checkpoint at frame {m['resumed_from_frame']}"))
         if m.get("interrupted"):
-            rows.append(("interrupted", "yes: outputs hold the poses estimated so far"))
+            ck = (m.get("checkpoints") or {}).get("last")
+            tail = f"; --resume continues from {ck}" if ck else ""
+            rows.append(("interrupted", f"yes: outputs hold the poses estimated so far{tail}"))
         rows.append(("outputs", str(self.out)))
         return rows
 
@@ -126,6 +145,7 @@ def run_sequence(
     overwrite: bool = False,
     stages: StageProgress | None = None,
     start_frame: int = 0,
+    resume: bool = False,
     **dataset_kwargs: Any,
 ) -> RunResult:
     """Open the dataset ``dataset_name`` at ``path`` and run :func:`run_dataset` on it.
@@ -136,6 +156,7 @@ def run_sequence(
     ``stages``: a callback ``(stage, done, total)`` for the stages after tracking (batch refinement,
     final pass, outputs).
     ``start_frame``: skip the sequence's first frames (the run and ``max_frames`` count from there).
+    ``resume``: continue the run in ``out`` from its last checkpoint.
     """
     if cfg.mode == "mono" and dataset_name in DATASETS_WITH_OPTIONAL_DEPTH:
         # a monocular run reads no depth, so frames that only lack a depth image are kept
@@ -148,8 +169,9 @@ def run_sequence(
     if start_frame:
         prov["start_frame"] = start_frame
     return run_dataset(
-        ds, cfg, Path(out), max_frames=max_frames, progress=callback, stages=stages, overwrite=overwrite, provenance=prov
-    )
+        ds, cfg, Path(out), max_frames=max_frames, progress=callback, stages=stages, overwrite=overwrite,
+        provenance=prov, resume=resume,
+    )  # fmt: skip
 
 
 def run_dataset(
@@ -161,10 +183,14 @@ def run_dataset(
     overwrite: bool = False,
     provenance: dict | None = None,
     stages: StageProgress | None = None,
+    resume: bool = False,
 ) -> RunResult:
     """Run the pipeline over the first ``max_frames`` frames of ``ds``; write the outputs to ``out``.
 
     ``overwrite``: replace gsslam's files of an older run in ``out`` (else such a folder is refused).
+    ``resume``: continue the run in ``out`` from its last complete checkpoint (same config, ``run.*``
+    aside, and same dataset, else :class:`gsslam.run.checkpoint.CheckpointError`); the frames before
+    it are not read again.
     ``progress(done, total, fps)`` after every frame; ``stages(stage, done, total)`` during the stages
     after the frames (each also logged at INFO).
     ``provenance``: the record for ``metrics.json`` (default: :func:`gsslam.run.provenance.provenance`).
@@ -172,37 +198,154 @@ def run_dataset(
     validate_config(cfg)  # a config built in Python has not been through load_config
     if max_frames is not None and max_frames < 1:
         raise RunError(f"max_frames must be >= 1, got {max_frames}")
+    if resume and overwrite:
+        raise RunError("--resume continues the run in the output folder; --overwrite would remove it")
     out = Path(out)
     prov = provenance if provenance is not None else _default_provenance(cfg, ds)
-    with RunFolder(out, overwrite=overwrite):
+    identity = {
+        "config_sha256": resume_config_hash(cfg),
+        "dataset": dataset_identity(ds, prov.get("dataset_path")),
+    }
+    with RunFolder(out, overwrite=overwrite, resume=resume):
         pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
+        start, done, seconds_before, load_seconds = 0, 0, 0.0, None
+        if resume:
+            t_load = time.perf_counter()
+            pipe, position = load_checkpoint(out, pipe, identity)
+            load_seconds = time.perf_counter() - t_load  # reading + the graphs' replay
+            start, done = int(position["next_frame"]), int(position["frames_done"])
+            seconds_before = float(position["seconds"])
+            prov = {**prov, "resumed_from_frame": start}
+            log.info("resuming at frame %d from the checkpoint in %s", start, out)
         save_config(cfg, out / "config.yaml")
         write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})
         n = len(ds) if max_frames is None else min(len(ds), max_frames)
         result = RunResult(out)
+        ckpt = _Checkpoints(out, cfg.run.checkpoint_every, identity, _submaps(pipe))
         t0 = time.perf_counter()
-        done, interrupted = 0, True
+        interrupted = True
         before_batch: dict[int, np.ndarray] = {}
         try:
-            with FramePrefetcher(ds, range(n)) as frames:  # decoding overlaps tracking; same order as ds[i]
-                for frame in frames:
+            with _DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
+                # decoding overlaps tracking; same order as ds[i]
+                for i, frame in zip(range(start, n), frames):
                     pipe.process(frame)
                     done += 1
                     if progress is not None:
-                        progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
+                        progress(done, n, done / max(time.perf_counter() - t0 + seconds_before, 1e-9))
+                    position = {
+                        "next_frame": i + 1,
+                        "frames_done": done,
+                        "seconds": seconds_before + time.perf_counter() - t0,
+                    }
+                    ckpt.after_frame(pipe, position, final=stop.signum is not None)
+                    stop.deliver_pending()
             pipe.close_chain()  # the tail's submap: the poses before the batch refinement are complete
             before_batch = pipe.frame_poses()
             log.info("%d frames tracked in %.1f s; finishing", done, time.perf_counter() - t0)
-            pipe.finish(run_seconds=time.perf_counter() - t0, progress=stages)
+            pipe.finish(run_seconds=seconds_before + time.perf_counter() - t0, progress=stages)
             interrupted = False
         finally:
-            wall = time.perf_counter() - t0
+            wall = seconds_before + time.perf_counter() - t0
             if stages is not None:
                 stages("outputs", 0, 1)
+            extra = {
+                "resumed_from_frame": start if resume else None,
+                "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
+            }
             result.metrics = write_outputs(
-                pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages
+                pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages, extra=extra
             )
+        remove_checkpoints(out)  # the run is complete: nothing to resume
     return result
+
+
+def _submaps(pipe: Pipeline) -> int:
+    return sum(len(c.encodings) for c in pipe.chains)
+
+
+class _Checkpoints:
+    """Writes a checkpoint every ``every`` new submaps (and when asked to, at an interruption)."""
+
+    def __init__(self, out: Path, every: int, identity: dict, submaps: int) -> None:
+        self.out, self.every, self.identity = out, every, identity
+        self.last_submaps = submaps
+        self.written: list[dict] = []
+        self.error: str | None = None  # why this run cannot be checkpointed (it goes on without)
+
+    def after_frame(self, pipe: Pipeline, position: dict, final: bool = False) -> None:
+        if self.every <= 0 or self.error is not None:
+            return
+        n = _submaps(pipe)
+        if final or n >= self.last_submaps + self.every:
+            try:
+                self.written.append(save_checkpoint(self.out, pipe, position, self.identity))
+            except CheckpointError as e:
+                self.error = str(e)
+                log.warning("%s; the run goes on without checkpoints", e)
+            self.last_submaps = n
+
+    def summary(self) -> dict:
+        w = self.written
+        return {
+            "every_submaps": self.every,
+            "written": len(w),
+            "last": w[-1]["name"] if w else None,
+            "bytes_last": w[-1]["bytes"] if w else 0,
+            "seconds_total": sum(c["seconds"] for c in w),
+            "error": self.error,
+        }
+
+
+class _DeferredInterrupt:
+    """SIGINT/SIGTERM during the frames: the current frame is finished (and checkpointed) first.
+
+    The first signal is recorded; :meth:`deliver_pending` (after the frame) then hands it to the
+    handler that was installed before (the CLI's, Python's KeyboardInterrupt). A second signal is
+    delivered at once. Only in the main thread (elsewhere signals cannot be handled).
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _DeferredInterrupt:
+        if threading.current_thread() is threading.main_thread():
+            for s in self.SIGNALS:
+                if signal.getsignal(s) is not signal.SIG_IGN:
+                    self._previous[s] = signal.signal(s, self._on_signal)
+        return self
+
+    def _on_signal(self, signum: int, frame) -> None:
+        if self.signum is not None:  # the second one: now
+            self._deliver(signum, frame)
+        self.signum = signum
+        name = signal.Signals(signum).name
+        log.warning("%s: finishing the current frame (a second one interrupts at once)", name)
+
+    def deliver_pending(self) -> None:
+        if self.signum is not None:
+            self._deliver(self.signum, None)
+
+    def _deliver(self, signum: int, frame) -> None:
+        previous = self._previous.get(signum)
+        self._restore()
+        if callable(previous):
+            previous(signum, frame)
+        raise KeyboardInterrupt
+
+    def _restore(self) -> None:
+        for s, h in self._previous.items():
+            signal.signal(s, h)
+        self._previous = {}
+
+    def __exit__(self, *exc) -> None:
+        pending = self.signum is not None and self._previous and exc[0] is None
+        if pending:
+            self.deliver_pending()
+        self._restore()
 
 
 class RunError(GsslamError):

@@ -75,6 +75,8 @@ class Pipeline:
         )
         self.rng = np.random.default_rng(cfg.seed)
         cv2.setRNGSeed(cfg.seed)  # RANSAC inside OpenCV: the same run gives the same trajectory
+        # (reseeded per frame in process() and at close_chain(): a run resumed from a checkpoint
+        # needs no OpenCV RNG state, see gsslam.run.checkpoint)
         self.chains: list[Chain] = []
         self.events: list[Event] = []
         self.timestamps: dict[int, float] = {}
@@ -127,6 +129,8 @@ class Pipeline:
         ):
             raise PipelineError(f"frame {frame.index} has another image size than the sequence")
         self.n_frames += 0 if retry else 1
+        if not retry:
+            cv2.setRNGSeed(self.cfg.seed + frame.index)
         if self.monocular and frame.depth is not None:
             frame = dataclasses.replace(frame, depth=None)  # a monocular run never sees sensor depth
         gap = self._time_gap(frame) if not retry else None
@@ -394,6 +398,7 @@ class Pipeline:
         refinement. Calling it twice does nothing the second time.
         """
         if len(self.window) > 1:
+            cv2.setRNGSeed(self.cfg.seed + self.window[-1].index)
             self._encode_window()
         self.window = []
 

@@ -25,6 +25,8 @@ from gsslam.config import Config, save_config, validate_config
 from gsslam.datasets import open_dataset
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
+from gsslam.frontend.colour_focal import colour_intrinsics, focal_correction, register_frame
+from gsslam.frontend.flow import make_flow_estimator
 from gsslam.run.folder import RunFolder
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
@@ -168,7 +170,8 @@ def run_dataset(
     out = Path(out)
     prov = provenance if provenance is not None else _default_provenance(cfg, ds)
     with RunFolder(out, overwrite=overwrite):
-        pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
+        ratio, focal = _colour_focal(ds, cfg, max_frames)
+        pipe = Pipeline(cfg, colour_intrinsics(ds.intrinsics, ratio))  # imports the heavy modules first
         save_config(cfg, out / "config.yaml")
         write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})
         n = len(ds) if max_frames is None else min(len(ds), max_frames)
@@ -179,7 +182,7 @@ def run_dataset(
         try:
             with FramePrefetcher(ds, range(n)) as frames:  # decoding overlaps tracking; same order as ds[i]
                 for frame in frames:
-                    pipe.process(frame)
+                    pipe.process(frame if ratio == 1.0 else register_frame(frame, ratio))
                     done += 1
                     if progress is not None:
                         progress(done, n, done / max(time.perf_counter() - t0, 1e-9))
@@ -195,7 +198,21 @@ def run_dataset(
             result.metrics = write_outputs(
                 pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages
             )
+            if focal is not None:
+                result.metrics["colour_focal"] = {
+                    "ratio_estimated": float(focal.ratio), "applied": ratio != 1.0, "pairs": focal.pairs,
+                    "cost_px_at_1": focal.cost_at_one, "cost_px_at_ratio": focal.cost_at_best,
+                }  # fmt: skip
+                write_metrics(out, result.metrics)
     return result
+
+
+def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (ratio to apply, FocalEstimate | None)
+    """RGB-D: the colour camera's focal length from the first frames (frontend/colour_focal.py)."""
+    if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
+        return 1.0, None
+    n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))
+    return focal_correction([ds[i] for i in range(n)], make_flow_estimator(cfg.flow), cfg.encoder.colour_focal_min_dev)
 
 
 class RunError(GsslamError):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -171,6 +171,8 @@ def run_dataset(
     prov = provenance if provenance is not None else _default_provenance(cfg, ds)
     with RunFolder(out, overwrite=overwrite):
         ratio, focal = _colour_focal(ds, cfg, max_frames)
+        if ratio != 1.0:  # unregistered depth: registering it by the focal ratio leaves the baseline's parallax
+            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # so poses come from depth (ICP)
         pipe = Pipeline(cfg, colour_intrinsics(ds.intrinsics, ratio))  # imports the heavy modules first
         save_config(cfg, out / "config.yaml")
         write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})

@@ -22,7 +22,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +33,8 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
+from gsslam.frontend.colour_focal import colour_intrinsics, focal_correction, register_frame
+from gsslam.frontend.flow import make_flow_estimator
 from gsslam.run.checkpoint import (
     CheckpointError,
     dataset_identity,
@@ -207,7 +209,10 @@ def run_dataset(
         "dataset": dataset_identity(ds, prov.get("dataset_path")),
     }
     with RunFolder(out, overwrite=overwrite, resume=resume):
-        pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
+        ratio, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
+        if ratio != 1.0:  # unregistered depth: registering it by the focal ratio leaves the baseline's parallax
+            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # so poses come from depth (ICP)
+        pipe = Pipeline(cfg, colour_intrinsics(ds.intrinsics, ratio))  # imports the heavy modules first
         start, done, seconds_before, load_seconds = 0, 0, 0.0, None
         if resume:
             t_load = time.perf_counter()
@@ -229,7 +234,7 @@ def run_dataset(
             with _DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    pipe.process(frame)
+                    pipe.process(frame if ratio == 1.0 else register_frame(frame, ratio))
                     done += 1
                     if progress is not None:
                         progress(done, n, done / max(time.perf_counter() - t0 + seconds_before, 1e-9))
@@ -253,11 +258,24 @@ def run_dataset(
                 "resumed_from_frame": start if resume else None,
                 "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
             }
+            if focal is not None:
+                extra["colour_focal"] = {
+                    "ratio_estimated": float(focal.ratio), "applied": ratio != 1.0, "pairs": focal.pairs,
+                    "cost_px_at_1": focal.cost_at_one, "cost_px_at_ratio": focal.cost_at_best,
+                }  # fmt: skip
             result.metrics = write_outputs(
                 pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages, extra=extra
             )
         remove_checkpoints(out)  # the run is complete: nothing to resume
     return result
+
+
+def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (ratio to apply, FocalEstimate | None)
+    """RGB-D: the colour camera's focal length from the first frames (frontend/colour_focal.py)."""
+    if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
+        return 1.0, None
+    n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))
+    return focal_correction([ds[i] for i in range(n)], make_flow_estimator(cfg.flow), cfg.encoder.colour_focal_min_dev)
 
 
 def _submaps(pipe: Pipeline) -> int:

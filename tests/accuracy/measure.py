@@ -27,7 +27,7 @@ from gsslam.datasets.base import open_dataset
 from gsslam.eval.ate import compute_ate
 from gsslam.eval.rpe import compute_rpe
 from gsslam.io.trajectory import read_tum
-from gsslam.run_outputs import run_dataset
+from gsslam.run.sequence import run_dataset
 
 
 def summarise(ds, out: Path, metrics: dict, mode: str) -> dict:

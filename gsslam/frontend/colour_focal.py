@@ -1,0 +1,194 @@
+"""Colour focal length from depth: recover the colour camera of an unregistered RGB-D sensor.
+
+Kinect v1 datasets such as 7-Scenes ship the depth image in the depth camera's pixel grid and one set
+of intrinsics (the depth camera's, fx = fy = 585) for both images, while the colour camera has a
+shorter focal length (~525 px). PnP on colour flow with the depth focal length makes every rotation
+and lateral motion ~10 % too small: the whole trajectory shrinks (docs/results.md, "Accuracy at
+length").
+
+The depth images alone give metric motion (point-to-plane ICP, ``frontend/icp.py``), independent of
+the colour camera. For a frame pair with ICP motion ``T_b_a`` and colour flow ``u_a -> u_b``, a
+candidate focal ratio ``k = f_depth / f_colour`` predicts where each colour pixel goes::
+
+    z   = depth_a[c + k (u_a - c)]               (the depth camera sees the point at that pixel)
+    X   = z [(u_a - c) k / f_depth, 1]           (back-projected with f_colour = f_depth / k)
+    u_b' = c + (f_depth / k) [X'_x, X'_y] / X'_z,  X' = T_b_a X
+
+:func:`estimate_focal_ratio` scans ``k`` and keeps the one with the smallest truncated reprojection
+error over a few pairs at the start of the sequence (the baseline between the two cameras, ~2.5 cm,
+is ignored: it shifts pixels but does not scale them). :func:`register_frame` then hands the frame out
+with the colour focal length and its depth resampled into the colour camera's grid, so that every
+later stage (tracking, encoder, cross-submap flow, loops, map) sees a consistent camera.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from gsslam.frontend.encoder import depth_edge_mask
+from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, textured_mask
+from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane
+from gsslam.geometry import so3_log
+from gsslam.types import CameraIntrinsics, Frame
+
+log = logging.getLogger(__name__)
+
+GRID_STRIDE_PX = 6  # colour pixels sampled every this many pixels
+TRUNCATE_PX = 4.0  # reprojection errors beyond this count as this (flow outliers, occlusions)
+
+
+@dataclass(frozen=True)
+class FocalEstimate:
+    ratio: float  # k = f_depth / f_colour (1: the given intrinsics already fit the colour image)
+    pairs: int  # frame pairs used
+    points: int  # colour pixels used over all pairs
+    cost_at_one: float  # mean truncated reprojection error (px) at k = 1
+    cost_at_best: float  # at k = ratio
+    ok: bool  # enough pairs and points, and the minimum inside the scanned range
+
+
+@dataclass(frozen=True)
+class _Pair:
+    uv_a: np.ndarray  # [M, 2] colour pixels in frame a
+    uv_b: np.ndarray  # [M, 2] their flow targets in frame b
+    depth_a: np.ndarray  # [H, W] metres (depth camera grid), NaN invalid
+    T_b_a: np.ndarray  # [4, 4] ICP motion (depth camera)
+
+
+def _pair(fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int) -> _Pair | None:
+    intr = fa.intrinsics
+    icp = icp_point_to_plane(fa.depth, fb.depth, intr, np.eye(4), strides=TRACK_STRIDES + (4,))
+    if not icp.ok:
+        return None
+    fw = flow(fa.image, fb.image)
+    bw = flow(fb.image, fa.image)
+    valid = forward_backward_mask(fw, bw, 1.0) & textured_mask(fa.image)
+    grid = np.zeros_like(valid)
+    grid[GRID_STRIDE_PX // 2 :: GRID_STRIDE_PX, GRID_STRIDE_PX // 2 :: GRID_STRIDE_PX] = True
+    vs, us = np.nonzero(valid & grid)
+    if len(us) > max_points:
+        keep = rng.choice(len(us), max_points, replace=False)
+        vs, us = vs[keep], us[keep]
+    uv_a = np.stack([us, vs], 1).astype(np.float64)
+    uv_b = uv_a + fw[vs, us].astype(np.float64)
+    depth = np.where(depth_edge_mask(fa.depth), np.nan, fa.depth).astype(np.float64)
+    return _Pair(uv_a, uv_b, depth, icp.T_tgt_src)
+
+
+def _cost(pair: _Pair, k: float, intr: CameraIntrinsics) -> tuple[float, int]:  # -> (sum, count)
+    c = np.array([intr.cx, intr.cy])
+    f = np.array([intr.fx, intr.fy]) / k  # colour focal lengths
+    h, w = pair.depth_a.shape
+    pd = np.rint(c + k * (pair.uv_a - c)).astype(int)  # depth-camera pixel of each colour pixel
+    inside = (pd[:, 0] >= 0) & (pd[:, 0] < w) & (pd[:, 1] >= 0) & (pd[:, 1] < h)
+    z = np.full(len(pd), np.nan)
+    z[inside] = pair.depth_a[pd[inside, 1], pd[inside, 0]]
+    ok = np.isfinite(z) & (z > 0)
+    X = np.concatenate([(pair.uv_a[ok] - c) / f * z[ok, None], z[ok, None]], 1)
+    Xb = X @ pair.T_b_a[:3, :3].T + pair.T_b_a[:3, 3]
+    front = Xb[:, 2] > 1e-3
+    uv = c + f * Xb[front, :2] / Xb[front, 2:3]
+    err = np.linalg.norm(uv - pair.uv_b[ok][front], axis=1)
+    return float(np.minimum(err, TRUNCATE_PX).sum()), int(front.sum())
+
+
+def estimate_focal_ratio(
+    frames: list[Frame],  # the first frames of the sequence, with depth
+    flow: FlowEstimator,
+    gap: int = 4,
+    max_pairs: int = 12,
+    min_rotation_deg: float = 1.0,
+    ratios: np.ndarray | None = None,
+    max_points: int = 3000,
+    seed: int = 0,
+) -> FocalEstimate:
+    """Scan ``k = f_depth / f_colour`` over ``ratios`` (default 0.80-1.25, step 0.0025); see the module doc.
+
+    Pairs ``(i, i + gap)`` whose ICP motion turns at least ``min_rotation_deg`` (rotation is what makes
+    the focal length observable) are used, up to ``max_pairs``.
+    """
+    ks = np.arange(0.80, 1.2501, 0.0025) if ratios is None else np.asarray(ratios, dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    pairs: list[_Pair] = []
+    for i in range(0, len(frames) - gap, max(1, gap // 2)):
+        fa, fb = frames[i], frames[i + gap]
+        if fa.depth is None or fb.depth is None:
+            continue
+        p = _pair(fa, fb, flow, rng, max_points)
+        if p is None or np.degrees(np.linalg.norm(so3_log(p.T_b_a[:3, :3]))) < min_rotation_deg:
+            continue
+        pairs.append(p)
+        if len(pairs) >= max_pairs:
+            break
+    intr = frames[0].intrinsics
+    if not pairs:
+        return FocalEstimate(1.0, 0, 0, float("nan"), float("nan"), False)
+    costs = np.zeros(len(ks))
+    n = 0
+    for j, k in enumerate(ks):
+        tot, cnt = 0.0, 0
+        for p in pairs:
+            s, m = _cost(p, k, intr)
+            tot, cnt = tot + s, cnt + m
+        costs[j] = tot / max(cnt, 1)
+        n = max(n, cnt)
+    best = int(np.argmin(costs))
+    k_best = float(ks[best])
+    if 0 < best < len(ks) - 1:  # parabola through the minimum and its neighbours
+        a, b, c = costs[best - 1], costs[best], costs[best + 1]
+        den = a - 2 * b + c
+        if den > 0:
+            k_best += 0.5 * (a - c) / den * float(ks[1] - ks[0])
+    c1 = float(np.interp(1.0, ks, costs))
+    ok = 0 < best < len(ks) - 1 and len(pairs) >= 3 and n >= 300
+    return FocalEstimate(k_best, len(pairs), n, c1, float(costs[best]), ok)
+
+
+def colour_intrinsics(intr: CameraIntrinsics, ratio: float) -> CameraIntrinsics:
+    """The colour camera: focal lengths divided by ``ratio`` (= f_depth / f_colour), same principal point."""
+    return replace(intr, fx=intr.fx / ratio, fy=intr.fy / ratio)
+
+
+def register_depth(depth: np.ndarray, intr: CameraIntrinsics, ratio: float) -> np.ndarray:
+    """Depth [H, W] of the depth camera resampled at the colour pixels: ``d(c + ratio (u - c))``, nearest."""
+    h, w = depth.shape
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    mx = (intr.cx + ratio * (u - intr.cx)).astype(np.float32)
+    my = (intr.cy + ratio * (v - intr.cy)).astype(np.float32)
+    out = cv2.remap(
+        depth.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+    )
+    return out
+
+
+def register_frame(frame: Frame, ratio: float) -> Frame:
+    """``frame`` with the colour focal length and its depth resampled into the colour camera's grid."""
+    intr = frame.intrinsics
+    depth = None if frame.depth is None else register_depth(frame.depth, intr, ratio)
+    return replace(frame, intrinsics=colour_intrinsics(intr, ratio), depth=depth)
+
+
+def focal_correction(
+    frames: list[Frame],  # the first frames (cfg.colour_focal_frames of them)
+    flow: FlowEstimator,
+    min_dev: float,
+) -> tuple[float, FocalEstimate | None]:
+    """The ratio to apply (1.0: leave the frames as they are) and the estimate it came from.
+
+    Only an estimate that is ``ok`` and off 1 by more than ``min_dev`` is applied: on registered,
+    calibrated data (TUM teddy) the estimate is 1.002, so nothing changes there.
+    """
+    if sum(f.depth is not None for f in frames) < 8:
+        return 1.0, None
+    est = estimate_focal_ratio(frames, flow)
+    apply = est.ok and abs(est.ratio - 1.0) > min_dev
+    log.info(
+        "colour focal: f_depth / f_colour = %.4f from %d pairs (%d px; %.2f -> %.2f px): %s",
+        est.ratio, est.pairs, est.points, est.cost_at_one, est.cost_at_best,
+        "applied (depth registered to colour)" if apply else "not applied",
+    )  # fmt: skip
+    return (float(est.ratio) if apply else 1.0), est

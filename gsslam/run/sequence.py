@@ -210,7 +210,7 @@ def run_dataset(
     }
     with RunFolder(out, overwrite=overwrite, resume=resume):
         ratio, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
-        if ratio != 1.0:  # unregistered depth: registering it by the focal ratio leaves the baseline's parallax
+        if ratio != 1.0:  # unregistered depth: registered by the focal ratio, the baseline's parallax stays
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # so poses come from depth (ICP)
         pipe = Pipeline(cfg, colour_intrinsics(ds.intrinsics, ratio))  # imports the heavy modules first
         start, done, seconds_before, load_seconds = 0, 0, 0.0, None
@@ -275,7 +275,8 @@ def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (ratio to appl
     if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
         return 1.0, None
     n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))
-    return focal_correction([ds[i] for i in range(n)], make_flow_estimator(cfg.flow), cfg.encoder.colour_focal_min_dev)
+    frames = [ds[i] for i in range(n)]
+    return focal_correction(frames, make_flow_estimator(cfg.flow), cfg.encoder.colour_focal_min_dev)
 
 
 def _submaps(pipe: Pipeline) -> int:

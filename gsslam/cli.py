@@ -124,6 +124,9 @@ def run_cmd(
     viz: Annotated[
         Optional[str], typer.Option(help="Also record a viewer file: rerun (OUT/run.rrd).")
     ] = None,
+    imu: Annotated[
+        bool, typer.Option("--imu", help="Preintegrated IMU factors between keyframes (imu.enabled=true).")
+    ] = False,
 ) -> None:
     """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT.
 
@@ -134,7 +137,7 @@ def run_cmd(
 
     if viz not in (None, "rerun"):
         raise typer.BadParameter(f"unknown viewer {viz!r}; the only one is 'rerun'", param_hint="--viz")
-    cfg = load_config(config, set_ or [], mode=mode)
+    cfg = load_config(config, (set_ or []) + (["imu.enabled=true"] if imu else []), mode=mode)
     ds_kwargs = _dataset_args(dataset_arg or [])
     if intrinsics is not None:
         if dataset not in ("images", "tum", "rosbag"):

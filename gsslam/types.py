@@ -334,6 +334,7 @@ class ImuSamples:
     accel: np.ndarray
     noise: dict = field(default_factory=dict)
     T_body_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
+    synthesized: bool = False  # made from ground truth (gsslam.datasets.imu_synth), not measured
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -342,5 +343,6 @@ class ImuSamples:
         """The samples with ``t0 <= t <= t1`` (same noise and extrinsic)."""
         m = (self.timestamps >= t0) & (self.timestamps <= t1)
         return ImuSamples(
-            self.timestamps[m], self.timestamps_ns[m], self.gyro[m], self.accel[m], dict(self.noise), self.T_body_imu
+            self.timestamps[m], self.timestamps_ns[m], self.gyro[m], self.accel[m], dict(self.noise), self.T_body_imu,
+            self.synthesized,
         )

@@ -135,5 +135,5 @@ def synthesize_imu(
     abs_t = t0 + ts
     t_ns = np.round(abs_t * 1e9).astype(np.int64)
     nz["rate_hz"] = float(rate_hz)
-    samples = ImuSamples(abs_t, t_ns, gyro_m, accel_m, nz, np.eye(4))
+    samples = ImuSamples(abs_t, t_ns, gyro_m, accel_m, nz, np.eye(4), synthesized=True)
     return SynthesizedImu(samples, R, p, v, bg, ba, g_world)

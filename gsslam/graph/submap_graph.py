@@ -65,6 +65,7 @@ class SubmapGraph:
         self.backend = Backend.from_config(cfg)
         self._subs: list[SubmapEncoding] = []
         self._owner: dict[int, tuple[int, int]] = {}  # frame index -> (submap, position in it)
+        self.gauge_handle: int | None = None  # handle of the Sim(3) prior on s0
 
     # -- submaps -----------------------------------------------------------------------------
     def add_submap(self, enc: SubmapEncoding) -> int:
@@ -81,9 +82,10 @@ class SubmapGraph:
             self.backend.add_value(key, to_gtsam(np.eye(4), "sim3"))
             import gtsam
 
-            self.backend.add_factor(
-                gtsam.PriorFactorSimilarity3(key, gtsam.Similarity3(), gauge_prior_noise(self.cfg))
-            )
+            self.gauge_handle = self.backend.add_factor(
+                gtsam.PriorFactorSimilarity3(key, gtsam.Similarity3(), gauge_prior_noise(self.cfg)),
+                "gauge prior s0",
+            )  # an IMU replaces it by a gravity-aligned gauge (gsslam.slam.imu_stage)
         else:
             prev = self._subs[-1]
             if enc.frame_indices[0] != prev.frame_indices[-1]:

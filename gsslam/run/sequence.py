@@ -167,8 +167,15 @@ def run_dataset(
         raise RunError(f"max_frames must be >= 1, got {max_frames}")
     out = Path(out)
     prov = provenance if provenance is not None else _default_provenance(cfg, ds)
+    imu_stage = None
+    if cfg.imu.enabled:  # before the folder is touched: a dataset without IMU fails here
+        from gsslam.run.imu import make_imu_stage
+
+        imu_stage = make_imu_stage(cfg, ds)
     with RunFolder(out, overwrite=overwrite):
         pipe = Pipeline(cfg, ds.intrinsics)  # imports the heavy modules before the first file
+        if imu_stage is not None:
+            pipe.add_plugin(imu_stage)
         save_config(cfg, out / "config.yaml")
         write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})
         n = len(ds) if max_frames is None else min(len(ds), max_frames)
@@ -195,6 +202,11 @@ def run_dataset(
             result.metrics = write_outputs(
                 pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages
             )
+            if imu_stage is not None:
+                from gsslam.run.imu import imu_metrics
+
+                result.metrics["imu"] = imu_metrics(imu_stage, pipe, ds.ground_truth())
+                write_metrics(out, result.metrics)
     return result
 
 

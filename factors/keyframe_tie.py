@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 
 from ._lie import check_group, check_positive, fill, read_transform, skew_batch, so3_right_jacobian_inv
-from .keyframe_pose import _rigid, keyframe_pose_residual
+from .keyframe_pose import check_rigid, keyframe_pose_residual
 
 
 def keyframe_tie_residual(S, X: np.ndarray, L: np.ndarray, T_body_cam: np.ndarray, group: str, want_jac=True):
@@ -51,8 +51,8 @@ def make_keyframe_tie_factor(
 ) -> gtsam.CustomFactor:
     """Tie body pose ``X = x{f}`` to ``rigid(S L) T_cam_body``; see the module docstring."""
     check_group(group)
-    L = _rigid("T_local_cam", T_local_cam)
-    T_body_cam = np.linalg.inv(_rigid("T_cam_body", T_cam_body))
+    L = check_rigid("T_local_cam", T_local_cam)
+    T_body_cam = np.linalg.inv(check_rigid("T_cam_body", T_cam_body))
     sig = np.array(
         [check_positive("rot_sigma", rot_sigma)] * 3 + [check_positive("trans_sigma", trans_sigma)] * 3
     )

@@ -83,12 +83,16 @@ def synthesize_imu(
     noise: dict | None = None,
     seed: int = 0,
     gravity: float = 9.81,
-    smoothing: float | None = None,
+    smoothing: float | None = 1e-4,
     t_range: tuple[float, float] | None = None,
 ) -> SynthesizedImu:
     """Synthesize IMU samples over ``[timestamps[0], timestamps[-1]]``; see the module docstring.
 
-    ``smoothing``: the splines' ``lam`` (None: chosen by generalized cross-validation per component).
+    ``smoothing``: the splines' ``lam`` (None: generalized cross-validation per component, ~50x slower).
+    Default 1e-4, measured on teddy (8 s): the spline stays within 0.27 mm (median; max 2.5 mm) of the
+    mocap positions, peak acceleration 1.3 m/s^2, and integrating the noise-free samples over 1 s
+    lands within 0.07 mm (max 0.19 mm) of it. Less smoothing follows the mocap jitter: at 1e-6 (about
+    what GCV picks) accelerations peak at 7.6 m/s^2 and 1 s integrations miss by up to 12 mm.
     ``t_range``: only the poses within ``[t0, t1]`` are used (GCV on a long trajectory is slow).
     ``noise``: densities as in EuRoC's sensor.yaml (keys of :data:`EUROC_IMU_NOISE`); zeros give exact
     samples of the spline trajectory.

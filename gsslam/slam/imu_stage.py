@@ -60,7 +60,25 @@ class ImuStage(Plugin):
         self.T_cam_imu = np.linalg.inv(T_imu_cam)
         self.times: dict[int, float] = {}
         self.chain: ImuChain | None = None
-        self.report: dict = {"initialized": False}
+        self.report: dict = {"initialized": False, "static_prefix": self._static_prefix()}
+
+    def _static_prefix(self) -> dict | None:
+        """Gravity and biases from the first ``imu.static_window_s`` of IMU when it rests there (logged
+        and reported even when no keyframe follows, e.g. a camera that never moves)."""
+        s, c = self.samples, self.icfg
+        w = s.timestamps <= s.timestamps[0] + c.static_window_s
+        if not is_static(s.timestamps[w], s.accel[w], c.static_max_accel_std):
+            return None
+        init = static_init(s.gyro[w], s.accel[w], c.gravity)
+        out = {
+            "seconds": float(s.timestamps[w][-1] - s.timestamps[0]),
+            "gravity_body": [float(x) for x in init.gravity_body],
+            "gravity_norm": float(np.linalg.norm(init.gravity_body)),
+            "gyro_bias": [float(x) for x in init.gyro_bias],
+            "accel_bias_along_gravity": float(np.linalg.norm(init.gravity_body) - c.gravity),
+        }
+        log.info("IMU at rest over the first %.2f s: %s", out["seconds"], out)
+        return out
 
     # ---- hooks -------------------------------------------------------------------------------
     def on_keyframe(self, event: GraphEvent) -> None:
@@ -126,6 +144,7 @@ class ImuStage(Plugin):
             add_keyframe_tie(graph, f, T_c_b, self.icfg.tie_rot_sigma, self.icfg.tie_trans_sigma)
         self.chain = chain
         self.report = {
+            **self.report,
             "initialized": True,
             "static_start": static is not None,
             "keyframes": len(kfs),

@@ -63,7 +63,8 @@ def test_imu_chain_on_the_static_euroc_prefix_does_not_diverge():
     p = be.estimate(keyframe_key(n)).translation()
     v = be.estimate(V(n))
     b = be.estimate(B(n))
-    # IMU only, 4.5 s at rest: measured end drift {P} m, speed {V} m/s
+    # IMU only, 4.5 s at rest (rotors running): measured end drift 0.024 m, speed 0.031 m/s; the biases
+    # stay at the initial estimate (nothing else observes them)
     assert np.linalg.norm(p) < 0.05
     assert np.linalg.norm(v) < 0.05
     assert np.linalg.norm(b.gyroscope() - init.gyro_bias) < 0.01

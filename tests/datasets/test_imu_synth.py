@@ -53,8 +53,7 @@ def test_integrating_synthesized_imu_reproduces_ground_truth(gt, noise):
         worst_p = max(worst_p, np.linalg.norm(pred.position() - syn.p_world_body[b]))
         dR = pred.attitude().matrix().T @ syn.R_world_body[b]
         worst_r = max(worst_r, np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(dR))))
-    if noise == "none":  # exact samples: only the zero-order hold of 200 Hz samples is left
-        print("NOISEFREE", worst_p, worst_r)
+    if noise == "none":  # exact samples: only the 200 Hz discretisation is left (measured <= 0.19 mm)
         assert worst_p < 2e-3 and worst_r < 1e-3
     else:  # EuRoC noise + bias walk: measured 2-6 mm and 0.03-0.06 deg per 1 s on the full teddy-200 span
         assert worst_p < 0.02 and worst_r < np.radians(0.3)

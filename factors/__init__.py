@@ -10,6 +10,7 @@ from .depth_prior import make_depth_prior_factor
 from .errors import FactorInputError
 from .flow import make_flow_factor, mixture_weights
 from .keyframe_pose import make_keyframe_pose_factor
+from .keyframe_tie import make_keyframe_tie_factor
 from .points import make_point_factor
 from .registration import make_registration_factor
 from .scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
@@ -20,6 +21,7 @@ __all__ = [
     "make_depth_prior_factor",
     "make_flow_factor",
     "make_keyframe_pose_factor",
+    "make_keyframe_tie_factor",
     "make_point_factor",
     "make_registration_factor",
     "make_scale_factor",

@@ -32,7 +32,7 @@ from ._lie import (
 from .errors import FactorInputError
 
 
-def _rigid(name: str, T) -> np.ndarray:
+def check_rigid(name: str, T) -> np.ndarray:
     T = check_shape(name, T, (4, 4))
     if not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-5) or not np.allclose(T[3], [0, 0, 0, 1]):
         raise FactorInputError(
@@ -68,8 +68,8 @@ def make_keyframe_pose_factor(
 ) -> gtsam.CustomFactor:
     """A prior on the pose of a keyframe whose submap variable is ``key``: ``rigid(S L) ~ T_world_cam``."""
     check_group(group)
-    L = _rigid("T_local_cam", T_local_cam)
-    M = _rigid("T_world_cam", T_world_cam)
+    L = check_rigid("T_local_cam", T_local_cam)
+    M = check_rigid("T_world_cam", T_world_cam)
     sig = np.array(
         [check_positive("rot_sigma", rot_sigma)] * 3 + [check_positive("trans_sigma", trans_sigma)] * 3
     )

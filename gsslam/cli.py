@@ -131,6 +131,9 @@ def run_cmd(
         bool,
         typer.Option(help="Continue the interrupted run in OUT from its last checkpoint (same arguments)."),
     ] = False,
+    imu: Annotated[
+        bool, typer.Option("--imu", help="Preintegrated IMU factors between keyframes (imu.enabled=true).")
+    ] = False,
 ) -> None:
     """Run SLAM on a sequence; writes trajectory, config, metrics, plots and the map to OUT.
 
@@ -142,7 +145,7 @@ def run_cmd(
 
     if viz not in (None, "rerun"):
         raise typer.BadParameter(f"unknown viewer {viz!r}; the only one is 'rerun'", param_hint="--viz")
-    cfg = load_config(config, set_ or [], mode=mode)
+    cfg = load_config(config, (set_ or []) + (["imu.enabled=true"] if imu else []), mode=mode)
     ds_kwargs = _dataset_args(dataset_arg or [])
     if intrinsics is not None:
         if dataset not in ("images", "tum", "rosbag"):

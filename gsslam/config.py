@@ -219,6 +219,26 @@ class RunConfig:
 
 
 @dataclass(frozen=True)
+class ImuConfig:
+    """Preintegrated IMU factors between keyframes (gsslam.slam.imu_stage); noise from EuRoC imu0/sensor.yaml."""
+
+    enabled: bool = False  # --imu: CombinedImuFactor between consecutive keyframes (dataset must give IMU)
+    gyro_noise_density: float = 1.6968e-4  # rad/s/sqrt(Hz), EuRoC imu0 gyroscope_noise_density
+    gyro_random_walk: float = 1.9393e-5  # rad/s^2/sqrt(Hz), EuRoC imu0 gyroscope_random_walk
+    accel_noise_density: float = 2.0e-3  # m/s^2/sqrt(Hz), EuRoC imu0 accelerometer_noise_density
+    accel_random_walk: float = 3.0e-3  # m/s^3/sqrt(Hz), EuRoC imu0 accelerometer_random_walk
+    gravity: float = 9.81  # m/s^2, magnitude; the graph world is z-up once the IMU is initialised
+    static_window_s: float = 1.0  # IMU seconds before the first keyframe used for the static-start test
+    static_max_accel_std: float = 0.15  # m/s^2: std of the window's 0.1 s accel means below this = static start (EuRoC V1_01 rest: <= 0.10; handheld teddy: >= 0.3)
+    tie_rot_sigma: float = 0.005  # rad: keyframe body pose variable vs its submap's pose of the keyframe
+    tie_trans_sigma: float = 0.005  # m (world units): the same for the position
+    gravity_sigma: float = 0.02  # rad: prior on the world's roll/pitch after initialisation (IMU refines)
+    accel_bias_sigma: float = 0.1  # m/s^2: prior on the first keyframe's accelerometer bias
+    gyro_bias_sigma: float = 0.01  # rad/s: prior on the first keyframe's gyroscope bias
+    min_init_keyframes: int = 4  # keyframes with IMU between them before the visual-inertial initialisation
+
+
+@dataclass(frozen=True)
 class Config:
     mode: str = "mono"  # "mono" | "rgbd"
     flow: FlowConfig = field(default_factory=FlowConfig)
@@ -229,6 +249,7 @@ class Config:
     loop: LoopConfig = field(default_factory=LoopConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
     seed: int = 0
 
 
@@ -430,6 +451,19 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.wildfire_threshold": NONNEG,
     "graph.batch_max_iterations": _ge(0),
     "graph.flow_effective_points": NONNEG,
+    "imu.gyro_noise_density": POS,
+    "imu.gyro_random_walk": POS,
+    "imu.accel_noise_density": POS,
+    "imu.accel_random_walk": POS,
+    "imu.gravity": POS,
+    "imu.static_window_s": POS,
+    "imu.static_max_accel_std": POS,
+    "imu.tie_rot_sigma": POS,
+    "imu.tie_trans_sigma": POS,
+    "imu.gravity_sigma": POS,
+    "imu.accel_bias_sigma": POS,
+    "imu.gyro_bias_sigma": POS,
+    "imu.min_init_keyframes": _ge(3),
     "mapper.device": ("auto", "cpu", "cuda"),
     "mapper.rasterizer": ("auto", "c", "torch", "gsplat", "fast"),  # gsslam.mapping.rasterize.BACKENDS
     "mapper.max_side": _ge(16),

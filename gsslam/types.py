@@ -320,3 +320,29 @@ class Correspondences:
 
     def __len__(self) -> int:
         return len(self.uv_src)
+
+
+@dataclass
+class ImuSamples:
+    """IMU measurements: ``timestamps`` [M] float64 s, ``timestamps_ns`` [M] int64, ``gyro`` [M, 3]
+    rad/s, ``accel`` [M, 3] m/s^2 (sensor frame); ``noise``: the continuous-time densities
+    ``gyroscope_noise_density`` etc. from ``sensor.yaml`` when present; ``T_body_imu`` [4, 4]."""
+
+    timestamps: np.ndarray
+    timestamps_ns: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    noise: dict = field(default_factory=dict)
+    T_body_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
+    synthesized: bool = False  # made from ground truth (gsslam.datasets.imu_synth), not measured
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def window(self, t0: float, t1: float) -> "ImuSamples":
+        """The samples with ``t0 <= t <= t1`` (same noise and extrinsic)."""
+        m = (self.timestamps >= t0) & (self.timestamps <= t1)
+        return ImuSamples(
+            self.timestamps[m], self.timestamps_ns[m], self.gyro[m], self.accel[m], dict(self.noise), self.T_body_imu,
+            self.synthesized,
+        )

@@ -95,13 +95,11 @@ def _pose_at(u: float, per_lap: int) -> np.ndarray:  # u: keyframe index, contin
 
 
 def _imu_params() -> gtsam.PreintegrationCombinedParams:
-    p = gtsam.PreintegrationCombinedParams.MakeSharedU(9.81)
-    p.setGyroscopeCovariance(_GYRO_NOISE**2 * np.eye(3))
-    p.setAccelerometerCovariance(_ACC_NOISE**2 * np.eye(3))
-    p.setBiasOmegaCovariance(_GYRO_WALK**2 * np.eye(3))
-    p.setBiasAccCovariance(_ACC_WALK**2 * np.eye(3))
-    p.setIntegrationCovariance(1e-8 * np.eye(3))
-    return p
+    """The run's parameters (``gsslam.graph.imu``, default ``imu.*`` config = EuRoC imu0 densities)."""
+    from gsslam.config import ImuConfig
+    from gsslam.graph.imu import preintegration_params
+
+    return preintegration_params(ImuConfig())
 
 
 def _velocity(u: float, per_lap: int) -> np.ndarray:

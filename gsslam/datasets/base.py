@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from gsslam.errors import GsslamError
-from gsslam.types import CameraIntrinsics, Frame, Trajectory
+from gsslam.types import CameraIntrinsics, Frame, ImuSamples, Trajectory
 
 
 class DatasetError(GsslamError):
@@ -33,6 +33,15 @@ class Dataset(Protocol):
     def timestamps(self) -> list[float]: ...
 
     def ground_truth(self) -> Trajectory | None: ...
+
+
+@runtime_checkable
+class ImuDataset(Protocol):
+    """A dataset that also gives IMU samples (``--imu``): EuRoC, TUM with ``imu="synthesized"``."""
+
+    T_body_cam: Any  # [4, 4] numpy: the camera in the body frame (EuRoC cam0 T_BS)
+
+    def imu(self) -> ImuSamples: ...
 
 
 def iterate(dataset: Dataset, max_frames: int | None = None) -> Iterator[Frame]:

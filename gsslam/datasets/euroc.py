@@ -21,7 +21,6 @@ Burri et al., "The EuRoC micro aerial vehicle datasets", IJRR 2016.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,30 +37,13 @@ from gsslam.datasets.common import (
 )
 from gsslam.datasets.image_io import Undistorter, check_image_files, read_color
 from gsslam.geometry import make_T, quat_to_rot
-from gsslam.types import CameraIntrinsics, Frame, Trajectory
+from gsslam.types import CameraIntrinsics, Frame, ImuSamples, Trajectory
 
 log = logging.getLogger(__name__)
 
 
 class EurocError(DatasetError):
     """A EuRoC folder, calibration or csv file is missing or malformed."""
-
-
-@dataclass
-class ImuSamples:
-    """IMU measurements: ``timestamps`` [M] float64 s, ``timestamps_ns`` [M] int64, ``gyro`` [M, 3]
-    rad/s, ``accel`` [M, 3] m/s^2 (sensor frame); ``noise``: the continuous-time densities
-    ``gyroscope_noise_density`` etc. from ``sensor.yaml`` when present; ``T_body_imu`` [4, 4]."""
-
-    timestamps: np.ndarray
-    timestamps_ns: np.ndarray
-    gyro: np.ndarray
-    accel: np.ndarray
-    noise: dict = field(default_factory=dict)
-    T_body_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
-
-    def __len__(self) -> int:
-        return len(self.timestamps)
 
 
 def ns_to_s(t_ns: np.ndarray) -> np.ndarray:  # [N] int64 -> [N] float64

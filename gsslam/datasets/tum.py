@@ -15,6 +15,10 @@ Sturm et al., "A Benchmark for the Evaluation of RGB-D SLAM Systems", IROS 2012.
 - Ground truth: ``groundtruth.txt`` (camera pose in the mocap world). ``ground_truth()`` gives every
   row; a frame's ``T_world_cam_gt`` is the nearest row within ``max_dt`` (else ``None``; fr3/teddy's
   first 5 frames come before the first pose).
+- IMU: TUM RGB-D has none. ``imu="synthesized"`` makes :meth:`TumRgbdDataset.imu` return 200 Hz samples
+  *synthesized* from the ground truth (:mod:`gsslam.datasets.imu_synth`: smoothing spline, EuRoC imu0
+  noise and bias random walk, seeded by ``imu_seed``); the body frame is the camera
+  (``T_body_cam = I``). Label every number made with them "synthesized".
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from gsslam.datasets.common import (
     read_tum_trajectory,
 )
 from gsslam.datasets.image_io import Undistorter, check_image_files, read_color, read_depth
-from gsslam.types import CameraIntrinsics, Frame, Trajectory
+from gsslam.types import CameraIntrinsics, Frame, ImuSamples, Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +88,8 @@ class TumRgbdDataset:
         with_depth: bool = True,
         missing_depth: str = "skip",
         gt_path: str | Path | None = None,
+        imu: str | None = None,
+        imu_seed: int = 0,
     ) -> None:
         self.root = Path(path)
         if not self.root.is_dir():
@@ -92,6 +98,10 @@ class TumRgbdDataset:
             raise TumError(f"missing_depth must be one of {MISSING_DEPTH_MODES}, got {missing_depth!r}")
         self.name = self.root.name
         self.max_dt = float(max_dt)
+        if imu not in (None, "synthesized"):
+            raise TumError(f"imu must be None or 'synthesized' (TUM RGB-D has no IMU), got {imu!r}")
+        self._imu_mode, self._imu_seed, self._imu = imu, int(imu_seed), None
+        self.T_body_cam = np.eye(4)  # the (synthesized) IMU sits in the camera frame
 
         if intrinsics is None and intrinsics_file is not None:
             intrinsics = load_intrinsics_yaml(Path(intrinsics_file), 640, 480)
@@ -173,3 +183,20 @@ class TumRgbdDataset:
 
     def ground_truth_at_frames(self) -> Trajectory | None:
         return self._gt.at_frames(self._times)
+
+    def imu(self) -> ImuSamples:
+        """IMU samples *synthesized* from the ground truth (``imu="synthesized"``); see the module doc."""
+        if self._imu_mode is None:
+            raise TumError(
+                f"{self.root}: TUM RGB-D has no IMU; open it with imu='synthesized' "
+                "(--dataset-arg imu=synthesized) to synthesize one from the ground truth"
+            )
+        gt = self._gt.trajectory
+        if gt is None:
+            raise TumError(f"{self.root}: IMU synthesis needs groundtruth.txt")
+        if self._imu is None:
+            from gsslam.datasets.imu_synth import synthesize_imu
+
+            t_range = (self._times[0] - 1.0, self._times[-1] + 1.0)
+            self._imu = synthesize_imu(gt.timestamps, gt.poses, seed=self._imu_seed, t_range=t_range).samples
+        return self._imu

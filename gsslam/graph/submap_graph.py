@@ -54,6 +54,7 @@ class SubmapGraph:
         self.backend = Backend.from_config(cfg)
         self._subs: list[SubmapEncoding] = []
         self._owner: dict[int, tuple[int, int]] = {}  # frame index -> (submap, position in it)
+        self.gauge_handle: int | None = None  # handle of the Sim(3) prior on s0
 
     # -- submaps -----------------------------------------------------------------------------
     def add_submap(self, enc: SubmapEncoding) -> int:
@@ -68,7 +69,8 @@ class SubmapGraph:
         key = submap_key(i)
         if i == 0:
             self.backend.add_value(key, to_gtsam(np.eye(4), "sim3"))
-            self._add(spec("sim3_prior", key, gauge_prior_sigmas(self.cfg)))
+            self.gauge_handle = self._add(spec("sim3_prior", key, gauge_prior_sigmas(self.cfg)), "gauge prior s0")
+            # an IMU replaces it by a gravity-aligned gauge (gsslam.slam.imu_stage)
         else:
             prev = self._subs[-1]
             if enc.frame_indices[0] != prev.frame_indices[-1]:

@@ -208,11 +208,18 @@ def run_dataset(
         "config_sha256": resume_config_hash(cfg),
         "dataset": dataset_identity(ds, prov.get("dataset_path")),
     }
+    imu_stage = None
+    if cfg.imu.enabled:  # before the folder is touched: a dataset without IMU fails here
+        from gsslam.run.imu import make_imu_stage
+
+        imu_stage = make_imu_stage(cfg, ds)
     with RunFolder(out, overwrite=overwrite, resume=resume):
         ratio, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
         if ratio != 1.0:  # unregistered depth: registered by the focal ratio, the baseline's parallax stays
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # so poses come from depth (ICP)
         pipe = Pipeline(cfg, colour_intrinsics(ds.intrinsics, ratio))  # imports the heavy modules first
+        if imu_stage is not None:
+            pipe.add_plugin(imu_stage)
         start, done, seconds_before, load_seconds = 0, 0, 0.0, None
         if resume:
             t_load = time.perf_counter()
@@ -263,6 +270,10 @@ def run_dataset(
                     "ratio_estimated": float(focal.ratio), "applied": ratio != 1.0, "pairs": focal.pairs,
                     "cost_px_at_1": focal.cost_at_one, "cost_px_at_ratio": focal.cost_at_best,
                 }  # fmt: skip
+            if imu_stage is not None:
+                from gsslam.run.imu import imu_metrics
+
+                extra["imu"] = imu_metrics(imu_stage, pipe, ds.ground_truth())
             result.metrics = write_outputs(
                 pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages, extra=extra
             )

@@ -140,3 +140,29 @@ def test_keyframe_pose_residual_is_zero_at_the_measured_pose():
     v.insert(S(0), value)
     f = make_keyframe_pose_factor(S(0), L, T, 0.01, 0.02, "sim3")
     np.testing.assert_allclose(f.unwhitenedError(v), np.zeros(6), atol=1e-9)
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_keyframe_tie_jacobians(group):
+    from gsslam.factors import make_keyframe_tie_factor
+
+    rng = np.random.default_rng(11)
+    v = _values(rng, group, n=1)
+    v.insert(S(1), random_value(rng, "pose3"))  # the keyframe's body pose variable (Pose3)
+    f = make_keyframe_tie_factor(S(0), S(1), _rigid(rng), _rigid(rng), 0.01, 0.02, group)
+    _assert_jacobians(f, v)
+
+
+def test_keyframe_tie_is_zero_when_the_body_pose_matches_the_submap():
+    from gsslam.factors import make_keyframe_tie_factor, to_matrix
+
+    rng = np.random.default_rng(12)
+    L, E = _rigid(rng), _rigid(rng)  # T_local_cam, T_cam_body
+    Sv = random_value(rng, "sim3")
+    T = to_matrix(Sv) @ L  # [[s R, t], [0, 1]]
+    T[:3, :3] /= np.cbrt(np.linalg.det(T[:3, :3]))  # rigid(S L)
+    v = gtsam.Values()
+    v.insert(S(0), Sv)
+    v.insert(S(1), gtsam.Pose3(T @ E))
+    f = make_keyframe_tie_factor(S(0), S(1), L, E, 0.01, 0.02, "sim3")
+    np.testing.assert_allclose(f.unwhitenedError(v), np.zeros(6), atol=1e-9)

@@ -1,0 +1,70 @@
+"""Keyframe tie: a keyframe's body pose *variable* ``X`` (Pose3) tied to its pose through its submap ``S``.
+
+IMU factors need a Pose3 variable per keyframe; the visual graph expresses a keyframe's camera pose as
+``rigid(S L)`` with the fixed local pose ``L = T_local_cam`` (see :mod:`keyframe_pose`). This factor
+compares the two, with the rigid camera-body extrinsic ``E = T_cam_body`` (metric)::
+
+    T = rigid(S L)  (model),   M = X E^-1  (the camera pose implied by the body variable)
+    r = [ Log(R_M^T R_T) ;  R_M^T (t_T - t_M) ]      (dimension 6; rad, world units)
+
+i.e. the residual of :func:`keyframe_pose.keyframe_pose_residual` with the measurement made a variable.
+Keys: ``S`` (Similarity3 or Pose3, ``group``) and ``X`` (Pose3). Jacobian in ``X`` (right chart,
+``X Exp([phi; rho])``)::
+
+    d r_rot = -Jl^-1(r_rot) R_bc^T dphi
+    d r_t   = ([r_t]x R_bc^T + R_bc^T [t_bc]x) dphi - R_bc^T drho
+
+with ``T_body_cam = E^-1 = (R_bc, t_bc)``.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ._lie import check_group, check_positive, fill, read_transform, skew_batch, so3_right_jacobian_inv
+from .keyframe_pose import check_rigid, keyframe_pose_residual
+
+
+def keyframe_tie_residual(S, X: np.ndarray, L: np.ndarray, T_body_cam: np.ndarray, group: str, want_jac=True):
+    """``S``: (R, t, s); ``X``: [4, 4] body pose; ``L``, ``T_body_cam`` [4, 4] -> (r [6], J_S, J_X [6, 6])."""
+    M = X @ T_body_cam
+    r, J_S = keyframe_pose_residual(S, L, M, group, want_jac)
+    if not want_jac:
+        return r, None, None
+    R_bc, t_bc = T_body_cam[:3, :3], T_body_cam[:3, 3]
+    J_X = np.zeros((6, 6))
+    J_X[0:3, 0:3] = -so3_right_jacobian_inv(-r[:3]) @ R_bc.T  # Jl^-1(w) = Jr^-1(-w)
+    J_X[3:6, 0:3] = skew_batch(r[None, 3:])[0] @ R_bc.T + R_bc.T @ skew_batch(t_bc[None])[0]
+    J_X[3:6, 3:6] = -R_bc.T
+    return r, J_S, J_X
+
+
+def make_keyframe_tie_factor(
+    key_submap: int,
+    key_body: int,
+    T_local_cam: np.ndarray,  # [4, 4] rigid: the keyframe in its submap's local frame (submap units)
+    T_cam_body: np.ndarray,  # [4, 4] rigid: the body (IMU) frame in the camera frame (metres)
+    rot_sigma: float,
+    trans_sigma: float,
+    group: str = "sim3",
+) -> gtsam.CustomFactor:
+    """Tie body pose ``X = x{f}`` to ``rigid(S L) T_cam_body``; see the module docstring."""
+    check_group(group)
+    L = check_rigid("T_local_cam", T_local_cam)
+    T_body_cam = np.linalg.inv(check_rigid("T_cam_body", T_cam_body))
+    sig = np.array(
+        [check_positive("rot_sigma", rot_sigma)] * 3 + [check_positive("trans_sigma", trans_sigma)] * 3
+    )
+    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        keys = this.keys()
+        S = read_transform(values, keys[0], group)
+        X = values.atPose3(keys[1]).matrix()
+        r, J_S, J_X = keyframe_tie_residual(S, X, L, T_body_cam, group, H is not None)
+        fill(H, 0, J_S)
+        fill(H, 1, J_X)
+        return r
+
+    return gtsam.CustomFactor(noise, [key_submap, key_body], error)

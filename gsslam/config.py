@@ -105,7 +105,7 @@ class MapperConfig:
     device: str = "auto"  # "auto" | "cpu" | "cuda"
     rasterizer: str = "auto"  # "auto" | "c" | "torch" | "gsplat" (docs/rasterizer.md); c: fail if not built
     max_side: int = 160  # mapper resolution: images downscaled so max(H, W) <= this
-    iterations: int = 60  # optimisation steps per map update
+    iterations: int = 30  # optimisation steps per map update (60 before issue #17: docs/results.md)
     window: int = 8  # keyframes in the sliding window
     lambda_ssim: float = 0.2
     lambda_depth: float = 5.0  # inverse-depth L1 (lambda_D, SING3R)
@@ -141,7 +141,7 @@ class MapperConfig:
     prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
-    final_iterations_per_keyframe: int = 32  # finalize(): global pass of this x keyframes steps at the end
+    final_iterations_per_keyframe: int = 8  # finalize(): this x keyframes steps at the end (32 before #17)
     final_max_iterations: int = 2000  # finalize(): step cap (0: none); when it binds, worst keyframes first
     final_max_share: float = 0.0  # finalize(): at most this share of the run (0: off; timing-dependent)
     final_lr_scale: float = 3.0  # finalize(): learning rates start at this x the lr_* above, decay to 10 %

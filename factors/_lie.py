@@ -138,6 +138,12 @@ def check_positive(name: str, v: float) -> float:
     return v
 
 
+def pose_sigmas(rot_sigma: float, trans_sigma: float) -> np.ndarray:  # -> [6]: rotation first, GTSAM's order
+    """The diagonal sigmas of a pose residual (rad x3, then translation x3), each checked positive."""
+    rot, trans = check_positive("rot_sigma", rot_sigma), check_positive("trans_sigma", trans_sigma)
+    return np.array([rot] * 3 + [trans] * 3)
+
+
 def fill(H, i: int, J: np.ndarray) -> None:
     """Write Jacobian block ``J`` into CustomFactor's output list ``H`` (when requested)."""
     if H is not None:

@@ -22,9 +22,9 @@ import numpy as np
 from ._lie import (
     action_jacobian,
     check_group,
-    check_positive,
     check_shape,
     fill,
+    pose_sigmas,
     read_transform,
     so3_log,
     so3_right_jacobian_inv,
@@ -70,10 +70,7 @@ def make_keyframe_pose_factor(
     check_group(group)
     L = check_rigid("T_local_cam", T_local_cam)
     M = check_rigid("T_world_cam", T_world_cam)
-    sig = np.array(
-        [check_positive("rot_sigma", rot_sigma)] * 3 + [check_positive("trans_sigma", trans_sigma)] * 3
-    )
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(pose_sigmas(rot_sigma, trans_sigma))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         r, J = keyframe_pose_residual(

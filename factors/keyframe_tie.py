@@ -22,7 +22,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ._lie import check_group, check_positive, fill, read_transform, skew_batch, so3_right_jacobian_inv
+from ._lie import check_group, fill, pose_sigmas, read_transform, skew_batch, so3_right_jacobian_inv
 from .keyframe_pose import check_rigid, keyframe_pose_residual
 
 
@@ -53,10 +53,7 @@ def make_keyframe_tie_factor(
     check_group(group)
     L = check_rigid("T_local_cam", T_local_cam)
     T_body_cam = np.linalg.inv(check_rigid("T_cam_body", T_cam_body))
-    sig = np.array(
-        [check_positive("rot_sigma", rot_sigma)] * 3 + [check_positive("trans_sigma", trans_sigma)] * 3
-    )
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(pose_sigmas(rot_sigma, trans_sigma))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         keys = this.keys()

@@ -20,10 +20,10 @@ import numpy as np
 
 from ._lie import (
     check_group,
-    check_positive,
     check_shape,
     fill,
     group_dim,
+    pose_sigmas,
     read_transform,
     skew_batch,
     so3_log,
@@ -72,10 +72,7 @@ def make_submap_alignment_factor(
     Z = check_shape("T_a_b", T_a_b, (4, 4))
     if not np.allclose(Z[:3, :3] @ Z[:3, :3].T, np.eye(3), atol=1e-5) or not np.allclose(Z[3], [0, 0, 0, 1]):
         raise FactorInputError("T_a_b must be a rigid 4x4 transform (orthonormal rotation, last row 0 0 0 1)")
-    sig = np.array(
-        [check_positive("rot_sigma", rot_sigma)] * 3 + [check_positive("trans_sigma", trans_sigma)] * 3
-    )
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(pose_sigmas(rot_sigma, trans_sigma))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         ka, kb = this.keys()

@@ -62,3 +62,11 @@ def wrong_loop(sm, det, i=6, m=2, yaw_deg=25.0, shift=(1.0, 0.0, 0.5)):
     X_m = rec.points_local[:100]
     thr = 0.05 if det.mode == "rgbd" else det.cfg.inlier_threshold_rel * det.record(i).median_depth
     return LoopConstraint(i, m, transform_points(T_bad, X_m), X_m, T_bad, 0.9, 0.9, thr)
+
+
+def corner_points(rng, n: int = 4000, relief: float = 0.05, wave: float = 9.0) -> np.ndarray:  # -> [n, 3]
+    """Points on three orthogonal unit planes with a sinusoidal relief: a surface ICP can lock onto."""
+    pts = rng.uniform(0.0, 1.0, size=(n, 3))
+    face = rng.integers(0, 3, n)
+    pts[np.arange(n), face] = relief * np.sin(wave * pts[np.arange(n), (face + 1) % 3])
+    return pts

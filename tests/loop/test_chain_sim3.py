@@ -8,17 +8,15 @@ import numpy as np
 from gsslam.geometry import compose_rigid, invert_T, make_T, sim3_scale, so3_exp, split_sim3, transform_points
 from gsslam.loop.chain_sim3 import fit_chain_sim3, icp_sim3
 from gsslam.loop.types import LoopConstraint
+from helpers.loop_scenes import corner_points
 
 
 def _sim3(rng, s) -> np.ndarray:
     return make_T(so3_exp(rng.normal(size=3) * 0.5), rng.normal(size=3), s)
 
 
-def _corner(rng, n=4000) -> np.ndarray:  # [n, 3] three orthogonal planes with some relief
-    pts = rng.uniform(0.0, 1.0, size=(n, 3))
-    face = rng.integers(0, 3, n)
-    pts[np.arange(n), face] = 0.05 * np.sin(9 * pts[np.arange(n), (face + 1) % 3])
-    return pts
+def _corner(rng) -> np.ndarray:  # [n, 3]
+    return corner_points(rng, relief=0.05, wave=9)
 
 
 def test_pooled_loops_give_the_sim3_between_chains_despite_outliers():

@@ -8,13 +8,11 @@ import numpy as np
 from gsslam.geometry import make_T, so3_exp, transform_points
 from gsslam.loop.relocalize import local_points, refine_rigid
 from gsslam.types import CameraIntrinsics, SubmapEncoding
+from helpers.loop_scenes import corner_points
 
 
-def _corner(rng, n=4000) -> np.ndarray:  # [n, 3] three orthogonal planes with some relief
-    pts = rng.uniform(0.0, 1.0, size=(n, 3))
-    face = rng.integers(0, 3, n)
-    pts[np.arange(n), face] = 0.02 * np.sin(7 * pts[np.arange(n), (face + 1) % 3])
-    return pts
+def _corner(rng) -> np.ndarray:  # [n, 3]
+    return corner_points(rng, relief=0.02, wave=7)
 
 
 def test_icp_recovers_a_perturbed_rigid_transform():

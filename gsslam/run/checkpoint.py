@@ -316,3 +316,40 @@ def load_checkpoint(out: Path, fresh_pipe, identity: dict) -> tuple[Any, dict]:
     except (KeyError, TypeError, ValueError):
         raise CheckpointError(f"{folder}/manifest.json: bad position {pos}; rerun without --resume") from None
     return pipe, position
+
+
+def submap_count(pipe) -> int:
+    return sum(len(c.encodings) for c in pipe.chains)
+
+
+class CheckpointSchedule:
+    """Writes a checkpoint every ``every`` new submaps (and when asked to, at an interruption)."""
+
+    def __init__(self, out: Path, every: int, identity: dict, submaps: int) -> None:
+        self.out, self.every, self.identity = out, every, identity
+        self.last_submaps = submaps
+        self.written: list[dict] = []
+        self.error: str | None = None  # why this run cannot be checkpointed (it goes on without)
+
+    def after_frame(self, pipe, position: dict, final: bool = False) -> None:
+        if self.every <= 0 or self.error is not None:
+            return
+        n = submap_count(pipe)
+        if final or n >= self.last_submaps + self.every:
+            try:
+                self.written.append(save_checkpoint(self.out, pipe, position, self.identity))
+            except CheckpointError as e:
+                self.error = str(e)
+                log.warning("%s; the run goes on without checkpoints", e)
+            self.last_submaps = n
+
+    def summary(self) -> dict:
+        w = self.written
+        return {
+            "every_submaps": self.every,
+            "written": len(w),
+            "last": w[-1]["name"] if w else None,
+            "bytes_last": w[-1]["bytes"] if w else 0,
+            "seconds_total": sum(c["seconds"] for c in w),
+            "error": self.error,
+        }

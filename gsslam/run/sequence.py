@@ -18,8 +18,6 @@ from the last complete one. A run that finishes removes its checkpoint.
 from __future__ import annotations
 
 import logging
-import signal
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -36,14 +34,15 @@ from gsslam.errors import GsslamError
 from gsslam.frontend.colour_focal import colour_intrinsics, focal_correction, register_frame
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.run.checkpoint import (
-    CheckpointError,
+    CheckpointSchedule,
     dataset_identity,
     load_checkpoint,
     remove_checkpoints,
     resume_config_hash,
-    save_checkpoint,
+    submap_count,
 )
 from gsslam.run.folder import RunFolder
+from gsslam.run.interrupt import DeferredInterrupt
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
 from gsslam.slam.pipeline import Pipeline
@@ -233,12 +232,12 @@ def run_dataset(
         write_metrics(out, {"status": "running", "provenance": prov, "dataset": getattr(ds, "name", None)})
         n = len(ds) if max_frames is None else min(len(ds), max_frames)
         result = RunResult(out)
-        ckpt = _Checkpoints(out, cfg.run.checkpoint_every, identity, _submaps(pipe))
+        ckpt = CheckpointSchedule(out, cfg.run.checkpoint_every, identity, submap_count(pipe))
         t0 = time.perf_counter()
         interrupted = True
         before_batch: dict[int, np.ndarray] = {}
         try:
-            with _DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
+            with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
                     pipe.process(frame if ratio == 1.0 else register_frame(frame, ratio))
@@ -288,94 +287,6 @@ def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (ratio to appl
     n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))
     frames = [ds[i] for i in range(n)]
     return focal_correction(frames, make_flow_estimator(cfg.flow), cfg.encoder.colour_focal_min_dev)
-
-
-def _submaps(pipe: Pipeline) -> int:
-    return sum(len(c.encodings) for c in pipe.chains)
-
-
-class _Checkpoints:
-    """Writes a checkpoint every ``every`` new submaps (and when asked to, at an interruption)."""
-
-    def __init__(self, out: Path, every: int, identity: dict, submaps: int) -> None:
-        self.out, self.every, self.identity = out, every, identity
-        self.last_submaps = submaps
-        self.written: list[dict] = []
-        self.error: str | None = None  # why this run cannot be checkpointed (it goes on without)
-
-    def after_frame(self, pipe: Pipeline, position: dict, final: bool = False) -> None:
-        if self.every <= 0 or self.error is not None:
-            return
-        n = _submaps(pipe)
-        if final or n >= self.last_submaps + self.every:
-            try:
-                self.written.append(save_checkpoint(self.out, pipe, position, self.identity))
-            except CheckpointError as e:
-                self.error = str(e)
-                log.warning("%s; the run goes on without checkpoints", e)
-            self.last_submaps = n
-
-    def summary(self) -> dict:
-        w = self.written
-        return {
-            "every_submaps": self.every,
-            "written": len(w),
-            "last": w[-1]["name"] if w else None,
-            "bytes_last": w[-1]["bytes"] if w else 0,
-            "seconds_total": sum(c["seconds"] for c in w),
-            "error": self.error,
-        }
-
-
-class _DeferredInterrupt:
-    """SIGINT/SIGTERM during the frames: the current frame is finished (and checkpointed) first.
-
-    The first signal is recorded; :meth:`deliver_pending` (after the frame) then hands it to the
-    handler that was installed before (the CLI's, Python's KeyboardInterrupt). A second signal is
-    delivered at once. Only in the main thread (elsewhere signals cannot be handled).
-    """
-
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-    def __init__(self) -> None:
-        self.signum: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> _DeferredInterrupt:
-        if threading.current_thread() is threading.main_thread():
-            for s in self.SIGNALS:
-                if signal.getsignal(s) is not signal.SIG_IGN:
-                    self._previous[s] = signal.signal(s, self._on_signal)
-        return self
-
-    def _on_signal(self, signum: int, frame) -> None:
-        if self.signum is not None:  # the second one: now
-            self._deliver(signum, frame)
-        self.signum = signum
-        name = signal.Signals(signum).name
-        log.warning("%s: finishing the current frame (a second one interrupts at once)", name)
-
-    def deliver_pending(self) -> None:
-        if self.signum is not None:
-            self._deliver(self.signum, None)
-
-    def _deliver(self, signum: int, frame) -> None:
-        previous = self._previous.get(signum)
-        self._restore()
-        if callable(previous):
-            previous(signum, frame)
-        raise KeyboardInterrupt
-
-    def _restore(self) -> None:
-        for s, h in self._previous.items():
-            signal.signal(s, h)
-        self._previous = {}
-
-    def __exit__(self, *exc) -> None:
-        pending = self.signum is not None and self._previous and exc[0] is None
-        if pending:
-            self.deliver_pending()
-        self._restore()
 
 
 class RunError(GsslamError):

@@ -279,7 +279,10 @@ def demo_cmd(
                 f"{DEMO_SEQUENCE} not found; run from a clone of gsslam or pass --data", param_hint="--data"
             )
     # the demo's own folder: a previous demo in it is replaced (only gsslam's files)
-    run_cmd(data, "tum", "rgbd", out, None, set_, max_frames, None, progress, overwrite=True)
+    run_cmd(
+        data, "tum", "rgbd", out, config=None, set_=set_, max_frames=max_frames, intrinsics=None,
+        progress=progress, overwrite=True,
+    )  # fmt: skip
     report = evaluate_files(
         data / "groundtruth.txt", out / "trajectory.tum", align="se3", plot=out / "ate.png"
     )

@@ -74,13 +74,21 @@ def local_points(enc: SubmapEncoding, voxel: float) -> np.ndarray:  # -> [N, 3] 
     return pts[np.sort(keep)]
 
 
-def _normals(points: np.ndarray, index, k: int = 30) -> np.ndarray:  # [N, 3] -> [N, 3] unit
-    """Surface normals by PCA of each point's ``k`` nearest neighbours."""
-    idx, _ = index.knnSearch(points.astype(np.float32), k, params={"checks": -1})
-    nb = points[idx]  # [N, k, 3]
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    return vecs[:, :, 0]  # eigenvector of the smallest eigenvalue
+def _normals(points: np.ndarray, index, k: int = 30, chunk: int = 20000) -> np.ndarray:  # [N, 3] -> [N, 3]
+    """Unit surface normals by PCA of each point's ``k`` nearest neighbours.
+
+    In chunks of ``chunk`` points: the neighbourhoods of a whole chain at once ([N, k, 3] twice) took
+    12 GB on a 640-frame relocalization; the search is exact, so chunks give the same normals.
+    """
+    out = np.empty((len(points), 3))
+    for a in range(0, len(points), chunk):
+        p = points[a : a + chunk]
+        idx, _ = index.knnSearch(p.astype(np.float32), k, params={"checks": -1})
+        nb = points[idx]  # [n, k, 3]
+        centred = nb - nb.mean(axis=1, keepdims=True)
+        _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+        out[a : a + chunk] = vecs[:, :, 0]  # eigenvector of the smallest eigenvalue
+    return out
 
 
 def refine_rigid(

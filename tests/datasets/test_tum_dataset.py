@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import cv2
@@ -13,25 +12,7 @@ from scipy.spatial.transform import Rotation
 from gsslam.datasets import DatasetError, open_dataset
 from gsslam.datasets.tum import TUM_INTRINSICS, TumRgbdDataset
 from gsslam.types import CameraIntrinsics
-
-
-def _entries(path: Path) -> tuple[list[str], list[str]]:
-    lines = path.read_text().splitlines()
-    return [l for l in lines if l.startswith("#")], [l for l in lines if l.strip() and not l.startswith("#")]
-
-
-def tum_copy(src: Path, dst: Path, n: int = 4) -> Path:
-    """The first ``n`` rgb/depth entries of ``src`` (with their files) and the full groundtruth.txt."""
-    dst.mkdir(parents=True)
-    for lst in ("rgb.txt", "depth.txt"):
-        head, rows = _entries(src / lst)
-        (dst / lst).write_text("\n".join(head + rows[:n]) + "\n")
-        for row in rows[:n]:
-            rel = row.split()[1]
-            (dst / rel).parent.mkdir(exist_ok=True)
-            shutil.copy(src / rel, dst / rel)
-    shutil.copy(src / "groundtruth.txt", dst / "groundtruth.txt")
-    return dst
+from helpers.tum import copy_tum_prefix, list_entries
 
 
 def test_bundled_frames_depth_and_intrinsics(bundled_tum):
@@ -41,13 +22,13 @@ def test_bundled_frames_depth_and_intrinsics(bundled_tum):
     f = ds[7]
     assert f.index == 7 and f.image.shape == (480, 640, 3) and f.image.dtype == np.float32
     assert 0.0 <= f.image.min() and f.image.max() <= 1.0
-    _, rgb_rows = _entries(bundled_tum / "rgb.txt")
+    _, rgb_rows = list_entries(bundled_tum / "rgb.txt")
     t, rel = rgb_rows[7].split()
     assert f.timestamp == float(t)
     bgr = cv2.imread(str(bundled_tum / rel))
     np.testing.assert_allclose(f.image, bgr[:, :, ::-1] / 255.0, atol=1e-6)
     # depth: nearest depth.txt entry, value / 5000, 0 -> NaN
-    _, depth_rows = _entries(bundled_tum / "depth.txt")
+    _, depth_rows = list_entries(bundled_tum / "depth.txt")
     d_t = np.array([float(r.split()[0]) for r in depth_rows])
     j = int(np.argmin(np.abs(d_t - float(t))))
     raw = cv2.imread(str(bundled_tum / depth_rows[j].split()[1]), cv2.IMREAD_UNCHANGED)
@@ -96,7 +77,7 @@ def test_shared_teddy_200_frames_and_depth_policy(shared_data):
 
 def test_fr1_folder_name_undistorts(bundled_tum, tmp_path):
     raw = TumRgbdDataset(bundled_tum)
-    ds = TumRgbdDataset(tum_copy(bundled_tum, tmp_path / "rgbd_dataset_freiburg1_copy", n=2))
+    ds = TumRgbdDataset(copy_tum_prefix(bundled_tum, tmp_path / "rgbd_dataset_freiburg1_copy", 2))
     assert ds.intrinsics.K.tolist() == TUM_INTRINSICS[1].K.tolist() and ds.intrinsics.distortion == ()
     a, b = raw[0], ds[0]
     assert np.abs(a.image - b.image).mean() > 0.01  # the fr1 distortion model moved pixels
@@ -112,7 +93,7 @@ def test_fr1_folder_name_undistorts(bundled_tum, tmp_path):
 
 
 def test_intrinsics_from_kwarg_or_file_when_name_is_unknown(bundled_tum, tmp_path):
-    path = tum_copy(bundled_tum, tmp_path / "my_sequence", n=2)
+    path = copy_tum_prefix(bundled_tum, tmp_path / "my_sequence", 2)
     with pytest.raises(DatasetError, match="freiburg"):
         TumRgbdDataset(path)
     K = CameraIntrinsics(500.0, 500.0, 320.0, 240.0, 640, 480)
@@ -127,7 +108,7 @@ def test_rgb_only(bundled_tum):
 
 
 def _break(path: Path, lst: str, fn) -> None:
-    head, rows = _entries(path / lst)
+    head, rows = list_entries(path / lst)
     (path / lst).write_text("\n".join(head + fn(rows)) + "\n")
 
 
@@ -141,23 +122,23 @@ def _break(path: Path, lst: str, fn) -> None:
     ],
 )
 def test_malformed_rgb_list(bundled_tum, tmp_path, fn, match):
-    path = tum_copy(bundled_tum, tmp_path / "rgbd_dataset_freiburg3_bad", n=4)
+    path = copy_tum_prefix(bundled_tum, tmp_path / "rgbd_dataset_freiburg3_bad", 4)
     _break(path, "rgb.txt", fn)
     with pytest.raises(DatasetError, match=match):
         TumRgbdDataset(path)
 
 
 def test_missing_files_and_corrupt_images(bundled_tum, tmp_path):
-    path = tum_copy(bundled_tum, tmp_path / "rgbd_dataset_freiburg3_bad", n=4)
+    path = copy_tum_prefix(bundled_tum, tmp_path / "rgbd_dataset_freiburg3_bad", 4)
     ds = TumRgbdDataset(path)
-    _, rows = _entries(path / "rgb.txt")
+    _, rows = list_entries(path / "rgb.txt")
     (path / rows[0].split()[1]).write_bytes(b"\x89PNG\r\n\x1a\n garbage")
     with pytest.raises(DatasetError, match="corrupt"):
         ds[0]
     (path / rows[1].split()[1]).unlink()
     with pytest.raises(DatasetError, match="missing"):
         ds[1]
-    _, drows = _entries(path / "depth.txt")
+    _, drows = list_entries(path / "depth.txt")
     small = np.full((240, 320), 5000, np.uint16)
     cv2.imwrite(str(path / drows[2].split()[1]), small)
     with pytest.raises(DatasetError, match="registered"):
@@ -173,7 +154,7 @@ def test_missing_files_and_corrupt_images(bundled_tum, tmp_path):
 
 
 def test_unsorted_groundtruth(bundled_tum, tmp_path):
-    path = tum_copy(bundled_tum, tmp_path / "rgbd_dataset_freiburg3_bad", n=2)
+    path = copy_tum_prefix(bundled_tum, tmp_path / "rgbd_dataset_freiburg3_bad", 2)
     _break(path, "groundtruth.txt", lambda r: [r[3]] + r)
     with pytest.raises(DatasetError, match="groundtruth.txt"):
         TumRgbdDataset(path)

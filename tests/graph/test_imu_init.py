@@ -10,7 +10,15 @@ import pytest
 
 from gsslam.config import ImuConfig
 from gsslam.graph.backend import Backend
-from gsslam.graph.imu import B, V, ImuChain, is_static, preintegration_params, static_init, visual_inertial_init
+from gsslam.graph.imu import (
+    B,
+    ImuChain,
+    V,
+    is_static,
+    preintegration_params,
+    static_init,
+    visual_inertial_init,
+)
 from gsslam.graph.keys import keyframe_key
 
 REPO = Path(__file__).parents[2]
@@ -54,7 +62,8 @@ def test_imu_chain_on_the_static_euroc_prefix_does_not_diverge():
     X0 = np.eye(4)
     X0[:3, :3] = init.R_world_body
     chain.start(0, times[0], X0, np.zeros(3), bias, velocity_sigma=0.01)
-    be.add_factor(gtsam.PriorFactorPose3(keyframe_key(0), gtsam.Pose3(X0), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+    prior = gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+    be.add_factor(gtsam.PriorFactorPose3(keyframe_key(0), gtsam.Pose3(X0), prior))
     be.update()
     for k in range(1, len(times)):
         chain.add(k, times[k])

@@ -1,4 +1,5 @@
-"""The run's IMU graph code (gsslam.graph.imu: ImuChain, CombinedImuFactor) alone, on gtsam's real KITTI IMU + GPS."""
+"""The run's IMU graph code (gsslam.graph.imu: ImuChain, CombinedImuFactor) alone, on gtsam's real
+KITTI IMU + GPS."""
 
 from __future__ import annotations
 

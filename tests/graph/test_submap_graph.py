@@ -96,6 +96,18 @@ def _true_values(g: SubmapGraph, encs):
     return v
 
 
+def _true_flow_5_to_7(encs, truth):  # -> (uv [192, 2], uv_t [192, 2], source depth [192], target depth [192])
+    """Submap 0's frame 5 pixels and their true positions in frame 7 (submap 1), from the ground truth."""
+    world = lambda f: np.linalg.inv(truth[0]) @ truth[f]  # noqa: E731  (gauge: first camera)
+    uv = np.stack(np.meshgrid(np.arange(16.0), np.arange(12.0)), -1).reshape(-1, 2)
+    enc = encs[0]
+    X = enc.points_cam[5].reshape(-1, 3)
+    Xw = X * enc.meta["unit"] @ world(5)[:3, :3].T + world(5)[:3, 3]
+    Tb = np.linalg.inv(world(7))
+    Xb = Xw @ Tb[:3, :3].T + Tb[:3, 3]
+    return uv, Xb[:, :2] / Xb[:, 2:] * 20.0 + [7.5, 5.5], X[:, 2], Xb[:, 2]
+
+
 def test_flow_and_depth_prior_are_consistent_with_truth():
     import gtsam
 
@@ -104,22 +116,15 @@ def test_flow_and_depth_prior_are_consistent_with_truth():
     for e in encs:
         g.add_submap(e)
     n = 24
-    world = lambda f: np.linalg.inv(truth[0]) @ truth[f]  # noqa: E731  (gauge: first camera)
     # source frame 5 (submap 0), target frame 7 (submap 1): project submap 0's points with the truth
-    enc, j = encs[0], 5
-    uv = np.stack(np.meshgrid(np.arange(16.0), np.arange(12.0)), -1).reshape(-1, 2)
-    X = enc.points_cam[j].reshape(-1, 3)
-    Xw = X * enc.meta["unit"] @ world(5)[:3, :3].T + world(5)[:3, 3]
-    Tb = np.linalg.inv(world(7))
-    Xb = Xw @ Tb[:3, :3].T + Tb[:3, 3]
-    uv_t = Xb[:, :2] / Xb[:, 2:] * 20.0 + [7.5, 5.5]
-    assert (Xb[:, 2] > 0).all()
-    corr = Correspondences(5, 7, uv, uv_t, X[:, 2], np.ones(len(uv)))
+    uv, uv_t, z5, z7 = _true_flow_5_to_7(encs, truth)
+    assert (z7 > 0).all()
+    corr = Correspondences(5, 7, uv, uv_t, z5, np.ones(len(uv)))
     h = g.add_flow(corr, INTR.K)
     assert h is not None
-    assert g.add_flow(Correspondences(1, 3, uv, uv, X[:, 2], np.ones(len(uv))), INTR.K) is None  # same submap
+    assert g.add_flow(Correspondences(1, 3, uv, uv, z5, np.ones(len(uv))), INTR.K) is None  # same submap
     with pytest.raises(GraphError, match="not a keyframe"):
-        g.add_flow(Correspondences(5, 99, uv, uv_t, X[:, 2], np.ones(len(uv))), INTR.K)
+        g.add_flow(Correspondences(5, 99, uv, uv_t, z5, np.ones(len(uv))), INTR.K)
     z9 = encs[1].points_cam[3].reshape(-1, 3)[:n, 2] * encs[1].meta["unit"]  # true world depth of frame 9
     hd = g.add_depth_prior(9, uv[:n], z9, INTR.K)  # frame 9 = position 3 of submap 1
     assert hd is not None
@@ -151,14 +156,8 @@ def test_flow_effective_points_scales_the_factor_information():
     import gtsam
 
     encs, truth = make_chain(4, drift=0.0, rot_noise_deg=0.0, seed=2)
-    world = lambda f: np.linalg.inv(truth[0]) @ truth[f]  # noqa: E731
-    enc, j = encs[0], 5
-    uv = np.stack(np.meshgrid(np.arange(16.0), np.arange(12.0)), -1).reshape(-1, 2)
-    X = enc.points_cam[j].reshape(-1, 3)
-    Xw = X * enc.meta["unit"] @ world(5)[:3, :3].T + world(5)[:3, 3]
-    Tb = np.linalg.inv(world(7))
-    Xb = Xw @ Tb[:3, :3].T + Tb[:3, 3]
-    corr = Correspondences(5, 7, uv, Xb[:, :2] / Xb[:, 2:] * 20.0 + [7.5, 5.5], X[:, 2], np.ones(len(uv)))
+    uv, uv_t, z5, _ = _true_flow_5_to_7(encs, truth)
+    corr = Correspondences(5, 7, uv, uv_t, z5, np.ones(len(uv)))
     errors = []
     for n_eff in (0.0, 4.0):
         g = SubmapGraph(dataclasses.replace(CFG, flow_effective_points=n_eff), monocular=True)

@@ -65,3 +65,26 @@ def load_tum(root: Path, indices: list[int], gt_pose: str = "interpolate") -> li
         d[d <= 0] = np.nan
         frames.append(Frame(i, t, np.ascontiguousarray(img), TUM_FR3, d, pose_at(gt, t)))
     return frames
+
+
+def list_entries(path: Path) -> tuple[list[str], list[str]]:
+    """A TUM list file (rgb.txt, depth.txt, groundtruth.txt) as (comment lines, data lines)."""
+    lines = path.read_text().splitlines()
+    return [l for l in lines if l.startswith("#")], [l for l in lines if l.strip() and not l.startswith("#")]
+
+
+def copy_tum_prefix(src: Path, dst: Path, n: int) -> Path:
+    """The first ``n`` rgb/depth entries of the TUM folder ``src`` (with their files) and the full
+    groundtruth.txt, copied into the new folder ``dst``."""
+    import shutil
+
+    dst.mkdir(parents=True)
+    for lst in ("rgb.txt", "depth.txt"):
+        head, rows = list_entries(src / lst)
+        (dst / lst).write_text("\n".join(head + rows[:n]) + "\n")
+        for row in rows[:n]:
+            rel = row.split()[1]
+            (dst / rel).parent.mkdir(exist_ok=True)
+            shutil.copy(src / rel, dst / rel)
+    shutil.copy(src / "groundtruth.txt", dst / "groundtruth.txt")
+    return dst

@@ -13,6 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from helpers.tum import copy_tum_prefix, list_entries
+
 REPO = Path(__file__).resolve().parents[2]
 BUNDLED_TUM = REPO / "data" / "rgbd_dataset_freiburg3_teddy_60"
 EXIT_FAILURE, EXIT_USAGE, EXIT_SIGINT, EXIT_SIGTERM = 1, 2, 130, 143
@@ -43,35 +45,22 @@ def assert_error(r: subprocess.CompletedProcess, *fragments: str, code: int = EX
     return errors[0]
 
 
-def _rows(path: Path) -> tuple[list[str], list[str]]:
-    lines = path.read_text().splitlines()
-    return [l for l in lines if l.startswith("#")], [l for l in lines if l.strip() and not l.startswith("#")]
 
 
 def teddy_copy(dst: Path, n: int = 12) -> Path:
     """The first ``n`` rgb/depth frames of the bundled TUM teddy (files and lists) and its ground truth.
 
     The folder name keeps ``freiburg3`` so the loader knows the camera."""
-    dst = dst / "rgbd_dataset_freiburg3_copy"
-    dst.mkdir(parents=True)
-    for lst in ("rgb.txt", "depth.txt"):
-        head, rows = _rows(BUNDLED_TUM / lst)
-        (dst / lst).write_text("\n".join(head + rows[:n]) + "\n")
-        for row in rows[:n]:
-            rel = row.split()[1]
-            (dst / rel).parent.mkdir(exist_ok=True)
-            shutil.copy(BUNDLED_TUM / rel, dst / rel)
-    shutil.copy(BUNDLED_TUM / "groundtruth.txt", dst / "groundtruth.txt")
-    return dst
+    return copy_tum_prefix(BUNDLED_TUM, dst / "rgbd_dataset_freiburg3_copy", n)
 
 
 def list_files(root: Path, lst: str) -> list[Path]:
-    return [root / row.split()[1] for row in _rows(root / lst)[1]]
+    return [root / row.split()[1] for row in list_entries(root / lst)[1]]
 
 
 def edit_row(path: Path, k: int, fn) -> str:
     """Replace the ``k``-th data row of a text list by ``fn(fields)``; returns the new row."""
-    head, rows = _rows(path)
+    head, rows = list_entries(path)
     rows[k] = " ".join(fn(rows[k].split()))
     path.write_text("\n".join(head + rows) + "\n")
     return rows[k]

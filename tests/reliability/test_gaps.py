@@ -9,10 +9,11 @@ import json
 
 import cv2
 import pytest
-from reliability_helpers import BUNDLED_TUM, _rows, gsslam, list_files, teddy_copy
+from reliability_helpers import BUNDLED_TUM, gsslam, list_files, teddy_copy
 
 from gsslam.eval.report import evaluate
 from gsslam.io.trajectory import read_tum
+from helpers.tum import list_entries
 
 FAST = ("--set", "mapper.enabled=false", "--no-progress")  # loop closure on: it re-localizes chains
 
@@ -22,7 +23,7 @@ def gap_copy(tmp_path_factory):
     """Teddy frames 0-19 then 50-59: 1.04 s without frames between frame 19 and frame 20."""
     seq = teddy_copy(tmp_path_factory.mktemp("gap"), n=60)
     for lst in ("rgb.txt", "depth.txt"):
-        head, rows = _rows(seq / lst)
+        head, rows = list_entries(seq / lst)
         (seq / lst).write_text("\n".join(head + rows[:20] + rows[50:]) + "\n")
     return seq
 
@@ -67,7 +68,7 @@ def unseen_copy(tmp_path_factory):
     camera sees a scene it has never seen (no revisit), so nothing can be re-joined."""
     seq = teddy_copy(tmp_path_factory.mktemp("unseen"), n=60)
     for lst in ("rgb.txt", "depth.txt"):
-        head, rows = _rows(seq / lst)
+        head, rows = list_entries(seq / lst)
         (seq / lst).write_text("\n".join(head + rows[:20] + rows[50:]) + "\n")
     for lst in ("rgb.txt", "depth.txt"):
         for path in list_files(seq, lst)[20:]:

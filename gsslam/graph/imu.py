@@ -307,12 +307,18 @@ def gravity_gauge_noise(
 
 
 def add_keyframe_tie(graph, f: int, T_cam_body: np.ndarray, rot_sigma: float, trans_sigma: float) -> int:
-    """Tie body pose ``x{f}`` to keyframe ``f``'s pose in a ``SubmapGraph``; returns the handle."""
+    """Tie body pose ``x{f}`` to keyframe ``f``'s pose in a ``SubmapGraph``; returns the handle.
+
+    ``trans_sigma`` is in world units at the submap's current scale ``s``: the factor measures the
+    translation in the submap's own units (the visual pose's error does not shrink with the submap, see
+    :mod:`gsslam.factors.keyframe_tie`), so it gets ``trans_sigma / s``.
+    """
     from gsslam.factors import make_keyframe_tie_factor
 
     key, L = graph.keyframe_anchor(f)
     U, _, Vt = np.linalg.svd(L[:3, :3])
     L = L.copy()
     L[:3, :3] = U @ Vt
-    factor = make_keyframe_tie_factor(key, keyframe_key(f), L, T_cam_body, rot_sigma, trans_sigma, "sim3")
+    scale = float(graph.backend.estimate(key).scale())
+    factor = make_keyframe_tie_factor(key, keyframe_key(f), L, T_cam_body, rot_sigma, trans_sigma / scale, "sim3")
     return graph.backend.add_factor(factor, f"imu tie x{f}")

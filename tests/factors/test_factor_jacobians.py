@@ -166,3 +166,33 @@ def test_keyframe_tie_is_zero_when_the_body_pose_matches_the_submap():
     v.insert(S(1), gtsam.Pose3(T @ E))
     f = make_keyframe_tie_factor(S(0), S(1), L, E, 0.01, 0.02, "sim3")
     np.testing.assert_allclose(f.unwhitenedError(v), np.zeros(6), atol=1e-9)
+
+
+def test_keyframe_tie_does_not_prefer_a_world_scale():
+    """The tie's residual is in submap units: moving the whole world by a Sim(3) (both the submap and
+    the body pose) leaves it unchanged; in world units it would shrink with the world's scale, and
+    against metric IMU positions the optimum would shrink every submap (5.5 % on teddy-200). The
+    extrinsic's lever arm is metric and does not scale with the world: it is 0 here."""
+    from gsslam.factors import make_keyframe_tie_factor, to_matrix
+
+    rng = np.random.default_rng(13)
+    L, E = _rigid(rng), _rigid(rng)
+    E[:3, 3] = 0.0
+    Sv, X = random_value(rng, "sim3"), gtsam.Pose3(_rigid(rng))
+    f = make_keyframe_tie_factor(S(0), S(1), L, E, 0.01, 0.02, "sim3")
+    v = gtsam.Values()
+    v.insert(S(0), Sv)
+    v.insert(S(1), X)
+    r = f.unwhitenedError(v)
+    assert np.linalg.norm(r[3:]) > 0.1  # away from zero, so that a scaling would show
+    for k in (0.25, 3.0):
+        G = gtsam.Similarity3(gtsam.Rot3.Expmap(rng.uniform(-1, 1, 3)), rng.uniform(-1, 1, 3), k)
+        Gm = to_matrix(G)
+        Xm = X.matrix()
+        Xk = np.eye(4)
+        Xk[:3, :3] = Gm[:3, :3] / k @ Xm[:3, :3]
+        Xk[:3, 3] = Gm[:3, :3] @ Xm[:3, 3] + Gm[:3, 3]
+        w = gtsam.Values()
+        w.insert(S(0), G.compose(Sv))
+        w.insert(S(1), gtsam.Pose3(Xk))
+        np.testing.assert_allclose(f.unwhitenedError(w), r, atol=1e-9)

@@ -231,7 +231,7 @@ class ImuConfig:
     static_window_s: float = 1.0  # IMU seconds before the first keyframe used for the static-start test
     static_max_accel_std: float = 0.15  # m/s^2: std of the window's 0.1 s accel means below this = static start (EuRoC V1_01 rest: <= 0.10; handheld teddy: >= 0.3)
     tie_rot_sigma: float = 0.005  # rad: keyframe body pose variable vs its submap's pose of the keyframe
-    tie_trans_sigma: float = 0.005  # m (world units): the same for the position
+    tie_trans_sigma: float = 0.005  # m at the submap's scale when the tie is made (tie in submap units)
     gravity_sigma: float = 0.02  # rad: prior on the world's roll/pitch after initialisation (IMU refines)
     accel_bias_sigma: float = 0.1  # m/s^2: prior on the first keyframe's accelerometer bias
     gyro_bias_sigma: float = 0.01  # rad/s: prior on the first keyframe's gyroscope bias

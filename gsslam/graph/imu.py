@@ -260,7 +260,10 @@ class ImuChain:
         be.add_value(V(f), np.asarray(velocity, float))
         be.add_value(B(f), bias)
         sig = np.array([self.cfg.accel_bias_sigma] * 3 + [self.cfg.gyro_bias_sigma] * 3)
-        be.add_factor(gtsam.PriorFactorConstantBias(B(f), bias, gtsam.noiseModel.Diagonal.Sigmas(sig)), f"imu bias prior b{f}")
+        be.add_factor(
+            gtsam.PriorFactorConstantBias(B(f), bias, gtsam.noiseModel.Diagonal.Sigmas(sig)),
+            f"imu bias prior b{f}",
+        )
         be.add_factor(
             gtsam.PriorFactorVector(V(f), np.asarray(velocity, float), gtsam.noiseModel.Isotropic.Sigma(3, velocity_sigma)),
             f"imu velocity prior v{f}",
@@ -268,7 +271,9 @@ class ImuChain:
         self.last = (f, t)
         self.states.append(f)
 
-    def add(self, f: int, t: float, T_world_body: np.ndarray | None = None, velocity: np.ndarray | None = None) -> int:
+    def add(
+        self, f: int, t: float, T_world_body: np.ndarray | None = None, velocity: np.ndarray | None = None
+    ) -> int:
         """State ``f`` at time ``t`` with a ``CombinedImuFactor`` from the newest state; returns its handle.
 
         Initial values: the given pose / velocity, else the IMU prediction from the newest state.
@@ -320,5 +325,6 @@ def add_keyframe_tie(graph, f: int, T_cam_body: np.ndarray, rot_sigma: float, tr
     L = L.copy()
     L[:3, :3] = U @ Vt
     scale = float(graph.backend.estimate(key).scale())
-    factor = make_keyframe_tie_factor(key, keyframe_key(f), L, T_cam_body, rot_sigma, trans_sigma / scale, "sim3")
+    sigma = trans_sigma / scale
+    factor = make_keyframe_tie_factor(key, keyframe_key(f), L, T_cam_body, rot_sigma, sigma, "sim3")
     return graph.backend.add_factor(factor, f"imu tie x{f}")

@@ -16,8 +16,11 @@ A built-in :class:`gsslam.slam.plugins.Plugin` (the runner adds it when ``imu.en
   becomes: yaw and position fixed, roll/pitch ``imu.gravity_sigma``, scale free in mono.
 - Later submaps: their keyframes get states, ties and IMU factors; the pipeline's update sends them.
 
-Only the first chain uses the IMU (a chain started after tracking loss is placed by its own
-``T_world_chain``, which a re-aligned world would contradict): later chains are logged and skipped.
+Every chain gets its own IMU states (a chain started after tracking loss is initialised like the
+first, on its own first submaps; no IMU factor crosses the gap). The first chain's world move moves the
+output world (z-up, metric); a later chain's move is compensated in its ``T_world_chain``
+(:meth:`gsslam.slam.plugins.GraphEvent.keep_output_world`), so its poses in the output world do not
+jump, and its graph is gravity-aligned and (mono) metric inside.
 """
 
 from __future__ import annotations
@@ -59,8 +62,13 @@ class ImuStage(Plugin):
         T_imu_cam = np.linalg.inv(samples.T_body_imu) @ np.asarray(T_body_cam, float)
         self.T_cam_imu = np.linalg.inv(T_imu_cam)
         self.times: dict[int, float] = {}
-        self.chain: ImuChain | None = None
+        self.chains: dict[int, ImuChain] = {}  # pipeline chain id -> its IMU states
         self.report: dict = {"initialized": False, "static_prefix": self._static_prefix()}
+
+    @property
+    def chain(self) -> ImuChain | None:
+        """The first chain's IMU states (the one ``report`` and ``estimates`` describe)."""
+        return self.chains.get(0)
 
     def _static_prefix(self) -> dict | None:
         """Gravity and biases from the first ``imu.static_window_s`` of IMU when it rests there (logged
@@ -86,15 +94,20 @@ class ImuStage(Plugin):
             self.times[event.frame_index] = float(event.timestamp)
 
     def on_submap(self, event: GraphEvent) -> None:
-        if event.chain != 0:
-            if self.report.get("skipped_chain") is None:
-                self.report["skipped_chain"] = event.chain
-                log.warning("IMU: chain %d is not the first chain; no IMU factors there", event.chain)
+        cid = event.chain
+        if cid in self.chains:
+            self._extend(self.chains[cid], event.graph)
             return
-        if self.chain is None:
-            self._initialize(event.graph)
-        else:
-            self._extend(event.graph)
+        out = self._initialize(event.graph)
+        if out is None:
+            return
+        chain, G, report = out
+        self.chains[cid] = chain
+        if cid == 0:
+            self.report = {**self.report, **report}
+        else:  # the output world stays the first chain's
+            event.keep_output_world(G)
+            self.report.setdefault("later_chains", {})[str(cid)] = report
 
     # ---- states ------------------------------------------------------------------------------
     def _covered(self, graph) -> list[int]:
@@ -103,11 +116,12 @@ class ImuStage(Plugin):
         kfs = sorted(f for f in graph.keyframe_poses() if f in self.times)
         return [f for f in kfs if t[0] <= self.times[f] <= t[-1]]
 
-    def _initialize(self, graph) -> None:
+    def _initialize(self, graph) -> tuple[ImuChain, np.ndarray, dict] | None:
+        """Initialise a chain's graph: (its IMU states, the Sim(3) ``G`` that moved its world, report)."""
         kfs = self._covered(graph)
         if len(kfs) < self.icfg.min_init_keyframes:
             log.info("IMU: %d keyframes with IMU so far; initialisation waits", len(kfs))
-            return
+            return None
         s = self.samples
         params = preintegration_params(self.icfg)
         poses = graph.keyframe_poses()
@@ -127,11 +141,11 @@ class ImuStage(Plugin):
             )  # fmt: skip
         except ImuError as e:
             log.warning("IMU initialisation postponed: %s", e)
-            return
+            return None
         gyro_bias = static.gyro_bias if static is not None else init.gyro_bias
         accel_bias = static.accel_bias if static is not None else init.accel_bias
         R_z_w = init.R_world_body @ (T_w_c[0, :3, :3] @ T_c_b[:3, :3]).T  # visual world -> z-up world
-        self._move_world(graph, R_z_w, init.scale)
+        G = self._move_world(graph, R_z_w, init.scale)
         chain = ImuChain(graph.backend, self.icfg, s.timestamps, s.gyro, s.accel)
         bias = gtsam.imuBias.ConstantBias(accel_bias, gyro_bias)
         poses = graph.keyframe_poses()
@@ -142,21 +156,23 @@ class ImuStage(Plugin):
             else:
                 chain.add(f, self.times[f], X, init.velocities[k])
             add_keyframe_tie(graph, f, T_c_b, self.icfg.tie_rot_sigma, self.icfg.tie_trans_sigma)
-        self.chain = chain
-        self.report = {
-            **self.report,
+        report = {
             "initialized": True,
             "static_start": static is not None,
             "keyframes": len(kfs),
             "scale": float(init.scale),
             "gyro_bias": [float(x) for x in gyro_bias],
             "accel_bias": [float(x) for x in accel_bias],
-            "gravity_body": [float(x) for x in (static.gravity_body if static is not None else init.gravity_body)],
+            "gravity_body": [
+                float(x) for x in (static.gravity_body if static is not None else init.gravity_body)
+            ],
         }
-        log.info("IMU initialised: %s", self.report)
+        log.info("IMU initialised: %s", report)
+        return chain, G, report
 
-    def _move_world(self, graph, R_z_w: np.ndarray, scale: float) -> None:
-        """Map the graph onto the z-up metric world ``G = Sim3(R_z_w, 0, scale)`` through s0's gauge."""
+    def _move_world(self, graph, R_z_w: np.ndarray, scale: float) -> np.ndarray:
+        """Map the graph onto the z-up metric world ``G = Sim3(R_z_w, 0, scale)`` through s0's gauge;
+        returns ``G`` [4, 4]."""
         gc = self.cfg.graph
         be = graph.backend
         key = submap_key(0)
@@ -170,11 +186,17 @@ class ImuStage(Plugin):
         graph.remove_factor(h)
         R_s0 = target.rotation().matrix()
         scale_sigma = 10.0 if self.monocular else gc.prior_scale_sigma  # mono: the IMU gives the scale
-        noise = gravity_gauge_noise(R_s0, gc.prior_rot_sigma, self.icfg.gravity_sigma, gc.prior_trans_sigma, scale_sigma)
-        graph.gauge_handle = be.add_factor(gtsam.PriorFactorSimilarity3(key, target, noise), "gauge prior s0 (gravity)")
+        noise = gravity_gauge_noise(
+            R_s0, gc.prior_rot_sigma, self.icfg.gravity_sigma, gc.prior_trans_sigma, scale_sigma
+        )
+        graph.gauge_handle = be.add_factor(
+            gtsam.PriorFactorSimilarity3(key, target, noise), "gauge prior s0 (gravity)"
+        )
+        out = np.eye(4)
+        out[:3, :3] = float(scale) * R_z_w
+        return out
 
-    def _extend(self, graph) -> None:
-        chain = self.chain
+    def _extend(self, chain: ImuChain, graph) -> None:
         last = chain.last[0]
         poses = graph.keyframe_poses()
         for f in self._covered(graph):

@@ -63,6 +63,12 @@ class GraphEvent:
         return self.graph.add_keyframe_pose_prior(frame_index, T_chain_cam, rot_sigma, trans_sigma, name)
 
 
+    def keep_output_world(self, G: np.ndarray) -> None:
+        """The plugin moved this chain's graph world by the Sim(3) ``G`` [4, 4] (new = ``G`` old): keep
+        the output world where it was, ``T_world_chain <- T_world_chain G^-1`` (in place)."""
+        self.T_world_chain[...] = self.T_world_chain @ np.linalg.inv(np.asarray(G, float))
+
+
 class Plugin:
     """Base class of plugins; every hook does nothing unless overridden."""
 

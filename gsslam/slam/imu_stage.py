@@ -6,7 +6,7 @@ A built-in :class:`gsslam.slam.plugins.Plugin` (the runner adds it when ``imu.en
   data gets a body pose ``x{f}`` (Pose3 ``T_world_imu``), a velocity ``v{f}`` and a bias ``b{f}``,
   tied to its submap by :func:`gsslam.graph.imu.add_keyframe_tie` (``x{f} ~ rigid(S_i L_j) T_cam_imu``;
   the extrinsic from the dataset: EuRoC ``T_BS``) and chained by gtsam's ``CombinedImuFactor``.
-- **Initialisation** (once per run, on the first chain, after the first submap that holds
+- **Initialisation** (once per chain, after the chain's first submap that holds
   ``imu.min_init_keyframes`` keyframes with IMU between them): gyro bias, gravity direction,
   velocities and (mono) the metric scale from the visual keyframe poses and the preintegrated IMU
   (:func:`gsslam.graph.imu.visual_inertial_init`); when the IMU rests for ``imu.static_window_s``
@@ -50,7 +50,8 @@ log = logging.getLogger(__name__)
 
 
 class ImuStage(Plugin):
-    """Adds IMU states and factors to the first chain's graph; ``report`` holds the initialisation."""
+    """Adds IMU states and factors to every chain's graph; ``report`` holds the first chain's
+    initialisation (later chains': ``report["later_chains"]``)."""
 
     def __init__(self, cfg: Config, samples: ImuSamples, T_body_cam: np.ndarray) -> None:
         if len(samples) < 2:

@@ -7,7 +7,10 @@ this machine; nothing is asserted (speed is reported, never tested). Each result
 ``reference_ms``, a fixed numpy workload shaped like one flow factor's linearisation (1000 points
 projected, their 2x6 Jacobians built and reduced), timed in the same process just before and after
 the size: ``isam2_update_median_per_reference`` compares machines and days (the absolute
-milliseconds say as much about the machine and its load as about the graph).
+milliseconds say as much about the machine and its load as about the graph). On a shared machine the
+process's CPU time per update (``isam2_update_cpu_ms_*``, ``time.process_time``) moves much less with
+the other jobs than wall time; ``isam2_relinearized_mean`` / ``isam2_reeliminated_mean`` count the
+variables iSAM2 relinearised / re-eliminated per update.
 
 With ``imu=True`` each keyframe also gets a velocity ``v`` and an IMU bias ``b`` and a
 ``CombinedImuFactor`` to its predecessor (keyframes 0.1 s apart, 200 Hz IMU SYNTHESIZED from the
@@ -138,6 +141,7 @@ def run_one(
     backend = Backend(isam_params(cfg), cfg.batch_max_iterations)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.full(6, 1e-4))
     times, loops = [], 0
+    cpu, relin, reelim = [], [], []  # process CPU seconds and iSAM2 counts per update
     for k in range(n):
         # like a tracking frontend: previous estimate composed with a noisy relative motion
         rel = gtsam.Pose3(np.linalg.inv(truth[k - 1]) @ truth[k]) if k else gtsam.Pose3(truth[0])
@@ -188,9 +192,13 @@ def run_one(
                     outlier_range_px=cfg.flow_outlier_range_px,
                 )
             )
-        t0 = time.perf_counter()
-        backend.update()
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = backend.update()
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+        if res is not None:
+            relin.append(res.getVariablesRelinearized())
+            reelim.append(res.getVariablesReeliminated())
     est = backend.values()
     err = [np.linalg.norm(est.atPose3(keyframe_key(k)).translation() - truth[k][:3, 3]) for k in range(n)]
     t0 = time.perf_counter()
@@ -207,6 +215,10 @@ def run_one(
         "isam2_update_ms_median": round(statistics.median(ms), 3),
         "isam2_update_ms_p90": round(float(np.percentile(ms, 90)), 3),
         "isam2_update_ms_max": round(max(ms), 3),
+        "isam2_update_cpu_ms_median": round(1e3 * statistics.median(cpu[1:]), 3),
+        "isam2_update_cpu_ms_p90": round(1e3 * float(np.percentile(cpu[1:], 90)), 3),
+        "isam2_relinearized_mean": round(float(np.mean(relin)), 2) if relin else None,
+        "isam2_reeliminated_mean": round(float(np.mean(reelim)), 2) if reelim else None,
         "isam2_position_error_max_m": round(float(max(err)), 4),
         "batch_lm_s": round(t_batch, 3),
         "reference_ms": round(ref, 3),

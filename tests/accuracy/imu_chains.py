@@ -50,6 +50,7 @@ for cid, ch in enumerate(pipe.chains):
     ate = np.sqrt(((X @ R[:3, :3].T + R[:3, 3] - Y) ** 2).sum(1).mean())
     n_imu = len(st.chains[cid].states) if cid in st.chains else 0
     print(
-        f"chain {cid}: {len(fr)} keyframes, in_world {ch.in_world}, graph scale error {abs(s - 1) * 100:.2f} %, "
+        f"chain {cid}: {len(fr)} keyframes, in_world {ch.in_world}, "
+        f"graph scale error {abs(s - 1) * 100:.2f} %, "
         f"graph SE(3) ATE {ate * 100:.2f} cm, IMU states {n_imu}"
     )

@@ -62,7 +62,6 @@ class GraphEvent:
         T_chain_cam = compose_rigid(invert_T(self.T_world_chain), np.asarray(T_world_cam, float))
         return self.graph.add_keyframe_pose_prior(frame_index, T_chain_cam, rot_sigma, trans_sigma, name)
 
-
     def keep_output_world(self, G: np.ndarray) -> None:
         """The plugin moved this chain's graph world by the Sim(3) ``G`` [4, 4] (new = ``G`` old): keep
         the output world where it was, ``T_world_chain <- T_world_chain G^-1`` (in place)."""

@@ -21,7 +21,9 @@ def test_mono_imu_gives_metric_scale_on_teddy_200(tmp_path):
     from gsslam.run.sequence import run_sequence
 
     cfg = load_config(None, ["imu.enabled=true", "mapper.enabled=false"], mode="mono")
-    res = run_sequence(TEDDY, "tum", cfg, tmp_path / "run", max_frames=FRAMES, progress=False, imu="synthesized")
+    res = run_sequence(
+        TEDDY, "tum", cfg, tmp_path / "run", max_frames=FRAMES, progress=False, imu="synthesized"
+    )
     imu = res.metrics["imu"]
     assert imu["initialized"] and imu["synthesized"] and not imu["static_start"]
     assert imu["states"] >= 50  # measured 59 (61 keyframes, the first before the mocap starts)

@@ -461,6 +461,25 @@ def bench_pipeline(
     _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
 
 
+@bench_app.command("map-cost")
+def bench_map_cost(
+    path: Annotated[Optional[Path], typer.Argument(help="Sequence folder (default: bundled teddy 60).")] = None,
+    dataset: Annotated[str, typer.Option()] = "tum",
+    mode: Annotated[str, typer.Option()] = "rgbd",
+    sides: Annotated[str, typer.Option(help="Comma-separated mapper.max_side values; full = input size.")] = (
+        "160,240,320"
+    ),
+    max_frames: Annotated[Optional[int], typer.Option(min=1)] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Config override for every run.")] = None,
+) -> None:
+    """Whole runs: map off, then one per mapper resolution; CPU ratio to map off and native PSNR."""
+    full = [t.strip() == "full" for t in sides.split(",")]
+    values = _int_list(",".join("1" if f else t for f, t in zip(full, sides.split(","))), "--sides")
+    sides_ = tuple("full" if f else v for f, v in zip(full, values))
+    _bench("map_cost", path=path, dataset=dataset, mode=mode, sides=sides_,
+           max_frames=max_frames, overrides=list(set_ or []))  # fmt: skip
+
+
 @bench_app.command("mapper")
 def bench_mapper(
     path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,

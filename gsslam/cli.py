@@ -452,11 +452,14 @@ def bench_pipeline(
         bool, typer.Option("--map/--no-map", help="With --lengths: mapper and loops on.")
     ] = True,
     plot: Annotated[Optional[Path], typer.Option(help="With --lengths: PNG of memory against frame.")] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="With --lengths: config override for every run.")
+    ] = None,
 ) -> None:
     """Tracking + graph FPS without the mapper; with --lengths, the whole run's cost by stage and length."""
     if lengths:
         _bench("pipeline", fn="run_lengths", path=path, mode=mode, pattern=pattern, map_on=map_on, plot=plot,
-               lengths=tuple(int(x) for x in lengths.split(",")))  # fmt: skip
+               lengths=tuple(int(x) for x in lengths.split(",")), overrides=list(set_ or []))  # fmt: skip
         return
     _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
 

@@ -102,7 +102,8 @@ def finalize(
     ``final_iterations_per_keyframe`` steps they are visited in shuffled epochs; when a cap binds, after
     one epoch the steps go to the keyframes whose renders err most (:func:`error_picker`). Learning rates
     start at ``final_lr_scale`` x the configured ones and decay to 10 % of that over the pass; the flow
-    loss is weighted by ``final_lambda_flow``. Afterwards only transparent Gaussians are pruned (no
+    loss is weighted by ``final_lambda_flow``. The first ``final_coarse_share`` of the steps render at half
+    the mapper resolution (:mod:`gsslam.mapping.levels`). Afterwards only transparent Gaussians are pruned (no
     densification). ``progress(done, total)`` is called after every step. Returns stats.
     """
     cfg = state.cfg
@@ -140,7 +141,7 @@ def finalize(
     bounds = np.linspace(0, iters, rounds + 2).round().astype(int)
     densified = 0
     first = last = None
-    coarse = coarse_steps(cfg.coarse_share, iters)  # the pass's first steps, across its rounds
+    coarse = coarse_steps(cfg.final_coarse_share, iters)  # the pass's first steps, across its rounds
     with torch_threads(cfg.num_threads):
         reset_error_state(state)
         for r in range(rounds + 1):

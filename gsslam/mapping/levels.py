@@ -1,9 +1,8 @@
 """A coarser pyramid level for cheap early optimisation steps (issue #17).
 
 A map step's cost is one render + backward, and most of it follows the pixels (the compositor's
-pixel-Gaussian pairs, the per-pixel losses). The first ``mapper.coarse_share`` of the steps of every
-window optimisation and of the final pass therefore render at ``COARSE_FACTOR`` of the mapper
-resolution, against the keyframe's image and depth reduced to that size (area average for colour,
+pixel-Gaussian pairs, the per-pixel losses). The first ``mapper.final_coarse_share`` of the final
+pass's steps therefore render at ``COARSE_FACTOR`` of the mapper resolution, against the keyframe's image and depth reduced to that size (area average for colour,
 nearest pixel for depth, so unknown depth stays unknown), like the coarse-to-fine schedules of
 3DGS trainers. The keyframe's pose (and its refinement delta) is shared, so pose gradients flow.
 """

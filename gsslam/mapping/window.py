@@ -17,7 +17,7 @@ import torch
 
 from gsslam.mapping import losses as L
 from gsslam.mapping.keyframes import Keyframe, torch_threads
-from gsslam.mapping.levels import camera_matrix, coarse_intrinsics, coarse_keyframe, coarse_steps
+from gsslam.mapping.levels import camera_matrix, coarse_intrinsics, coarse_keyframe
 from gsslam.mapping.pose_refine import pose_loss
 from gsslam.mapping.rasterize import RenderOutput
 from gsslam.mapping.state import MapState, render
@@ -48,8 +48,7 @@ def optimize_window(state: MapState, iterations: int | None = None) -> dict:
 
     t0 = time.perf_counter()
     with torch_threads(cfg.num_threads):
-        coarse = coarse_steps(cfg.coarse_share, iters)
-        first, last = adam_steps(state, iters, pick, pose_kfs, win, coarse_steps=coarse)
+        first, last = adam_steps(state, iters, pick, pose_kfs, win)
         active = torch.isin(state.model.keyframe_id, torch.tensor(win, device=state.device))
         state.model, state.densify_state, dstats = state.strategy.step(
             state.model, state.densify_state, active=active, generator=state.gen

@@ -1,4 +1,4 @@
-"""Coarse pyramid-level steps (mapper.coarse_share): cheaper steps that still fit the map."""
+"""Coarse pyramid-level steps (mapper.final_coarse_share): cheaper steps that still fit the map."""
 
 from __future__ import annotations
 
@@ -60,18 +60,19 @@ def test_a_coarse_step_fits_the_map_and_leaves_densification_alone(teddy_frames)
     assert any(not torch.equal(before[k], st.densify_state[k]) for k in before)  # a fine step does count
 
 
-def test_coarse_steps_alone_improve_the_map_at_the_mapper_resolution(teddy_frames):
-    """Steps at half resolution fit what the full-resolution render is scored on (they do useful work)."""
+def test_coarse_final_steps_improve_the_map_at_the_mapper_resolution(teddy_frames):
+    """A final pass all at half resolution fits what the full-resolution render is scored on."""
     torch.manual_seed(0)
-    cfg = dataclasses.replace(CFG, coarse_share=1.0)
+    cfg = dataclasses.replace(CFG, final_coarse_share=1.0, final_iterations_per_keyframe=20)
     m = GaussianMapper(cfg, teddy_frames[0].intrinsics)
     frames = teddy_frames[:2]
     poses = {f.index: f.T_world_cam_gt for f in frames}
     for f in frames:
         m.add_keyframe(f, f.T_world_cam_gt, submap_id=0)
     before = m.evaluate(iter(frames), poses)["psnr_keyframes"]
-    st = m.optimize(40)  # all 40 coarse
+    st = m.finalize()
     after = m.evaluate(iter(frames), poses)["psnr_keyframes"]
-    assert st["iterations"] == 40
-    # measured 20.89 -> 21.64 dB at 80x60 after 40 steps at 40x30 (weak: see docs/mapping.md)
+    assert st["iterations"] == 40 and st["coarse"] == 40
+    # measured 20.89 -> 21.87 dB at 80x60 after 40 steps at 40x30 (40 full-resolution steps: 26.78 dB;
+    # coarse steps only help a map the window has already fitted, docs/results.md "Map cost, session 5")
     assert after > before + 0.4

@@ -466,7 +466,7 @@ def bench_pipeline(
 
 @bench_app.command("map-cost")
 def bench_map_cost(
-    path: Annotated[Optional[Path], typer.Argument(help="Sequence folder (default: bundled teddy 60).")] = None,
+    path: Annotated[Optional[Path], typer.Argument(help="Sequence folder (default: bundled 60).")] = None,
     dataset: Annotated[str, typer.Option()] = "tum",
     mode: Annotated[str, typer.Option()] = "rgbd",
     sides: Annotated[str, typer.Option(help="Comma-separated mapper.max_side values; full = input size.")] = (

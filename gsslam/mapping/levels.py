@@ -2,9 +2,10 @@
 
 A map step's cost is one render + backward, and most of it follows the pixels (the compositor's
 pixel-Gaussian pairs, the per-pixel losses). The first ``mapper.final_coarse_share`` of the final
-pass's steps therefore render at ``COARSE_FACTOR`` of the mapper resolution, against the keyframe's image and depth reduced to that size (area average for colour,
-nearest pixel for depth, so unknown depth stays unknown), like the coarse-to-fine schedules of
-3DGS trainers. The keyframe's pose (and its refinement delta) is shared, so pose gradients flow.
+pass's steps therefore render at ``COARSE_FACTOR`` of the mapper resolution, against the keyframe's
+image and depth reduced to that size (area average for colour, nearest pixel for depth, so unknown
+depth stays unknown), like the coarse-to-fine schedules of 3DGS trainers. The keyframe's pose (and
+its refinement delta) is shared, so pose gradients flow.
 """
 
 from __future__ import annotations

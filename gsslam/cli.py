@@ -452,13 +452,35 @@ def bench_pipeline(
         bool, typer.Option("--map/--no-map", help="With --lengths: mapper and loops on.")
     ] = True,
     plot: Annotated[Optional[Path], typer.Option(help="With --lengths: PNG of memory against frame.")] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="With --lengths: config override for every run.")
+    ] = None,
 ) -> None:
     """Tracking + graph FPS without the mapper; with --lengths, the whole run's cost by stage and length."""
     if lengths:
         _bench("pipeline", fn="run_lengths", path=path, mode=mode, pattern=pattern, map_on=map_on, plot=plot,
-               lengths=tuple(int(x) for x in lengths.split(",")))  # fmt: skip
+               lengths=tuple(int(x) for x in lengths.split(",")), overrides=list(set_ or []))  # fmt: skip
         return
     _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
+
+
+@bench_app.command("map-cost")
+def bench_map_cost(
+    path: Annotated[Optional[Path], typer.Argument(help="Sequence folder (default: bundled 60).")] = None,
+    dataset: Annotated[str, typer.Option()] = "tum",
+    mode: Annotated[str, typer.Option()] = "rgbd",
+    sides: Annotated[str, typer.Option(help="Comma-separated mapper.max_side values; full = input size.")] = (
+        "160,240,320"
+    ),
+    max_frames: Annotated[Optional[int], typer.Option(min=1)] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Config override for every run.")] = None,
+) -> None:
+    """Whole runs: map off, then one per mapper resolution; CPU ratio to map off and native PSNR."""
+    full = [t.strip() == "full" for t in sides.split(",")]
+    values = _int_list(",".join("1" if f else t for f, t in zip(full, sides.split(","))), "--sides")
+    sides_ = tuple("full" if f else v for f, v in zip(full, values))
+    _bench("map_cost", path=path, dataset=dataset, mode=mode, sides=sides_,
+           max_frames=max_frames, overrides=list(set_ or []))  # fmt: skip
 
 
 @bench_app.command("mapper")

@@ -144,6 +144,7 @@ class MapperConfig:
     final_iterations_per_keyframe: int = 8  # finalize(): this x keyframes steps at the end (32 before #17)
     final_max_iterations: int = 2000  # finalize(): step cap (0: none); when it binds, worst keyframes first
     final_max_share: float = 0.0  # finalize(): at most this share of the run (0: off; timing-dependent)
+    final_coarse_share: float = 0.5  # finalize(): its first share of steps at half resolution (#17; docs)
     final_lr_scale: float = 3.0  # finalize(): learning rates start at this x the lr_* above, decay to 10 %
     final_densify_rounds: int = (
         0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
@@ -517,6 +518,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.registration_information_scale": POS,
     "mapper.final_max_iterations": _ge(0),
     "mapper.final_max_share": UNIT,
+    "mapper.final_coarse_share": UNIT,
     "loop.skip_recent": _ge(0),
     "loop.min_overlap": UNIT,
     "loop.min_score": UNIT,

@@ -54,7 +54,8 @@ def ssim_map(
     n = stack.shape[1]
     stack = stack.index_select(2, _symmetric_index(h, r, a.device))
     stack = F.conv2d(stack, w.view(1, 1, -1, 1).expand(n, 1, -1, 1), groups=n)
-    stack = stack.index_select(3, _symmetric_index(wd, r, a.device))
+    # symmetric padding along the width by slices (a gather along the last dim is ~4x slower on CPU)
+    stack = torch.cat([stack[..., :r].flip(3), stack, stack[..., wd - r :].flip(3)], dim=3)
     mu_x, mu_y, xx, yy, xy = F.conv2d(stack, w.view(1, 1, 1, -1).expand(n, 1, 1, -1), groups=n)[0].split(c)
     var_x, var_y, cov = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2

@@ -123,7 +123,9 @@ def run_lengths(
     submap), ``loops``, ``batch`` (the final batch refinement), ``final pass`` and ``outputs`` (map
     metrics, files); all milliseconds per frame of wall time (on a shared machine they include waiting
     for a core, so compare the stages and lengths of one invocation, never across machines). Resident
-    memory is sampled every 10 frames; ``plot`` writes it as a chart against the frame index.
+    memory is sampled every 10 frames; ``plot`` writes it as a chart against the frame index. ``cpu_s``
+    is the process's CPU time for the whole run (all threads): the ratio of a map-on to a map-off
+    invocation's ``cpu_s`` is the map's cost that the machine's load does not blur.
     """
     from gsslam.config import load_config
     from gsslam.datasets.base import open_dataset
@@ -135,7 +137,7 @@ def run_lengths(
         ds = open_dataset("playback", path or DEFAULT_PATH, base="tum", pattern=pattern)
         cfg = load_config(None, [*base_over, *(overrides or [])], mode=mode)
         rss: list[tuple[int, float]] = []
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         load_before = os.getloadavg()[0]
 
         def frames(done: int, total: int, fps: float, rss=rss) -> None:
@@ -145,6 +147,7 @@ def run_lengths(
         with tempfile.TemporaryDirectory() as tmp:
             m = run_dataset(ds, cfg, Path(tmp), max_frames=n, progress=frames).metrics
         total = time.perf_counter() - t0
+        cpu = time.process_time() - cpu0
         st = m.get("stage_seconds", {})
         done = max(1, m["frames"])
         # the run's wall time covers the frame loop, the tail's submap (close_chain), batch and final pass
@@ -163,6 +166,7 @@ def run_lengths(
                 "keyframes": m["keyframes"],
                 "ms_per_frame": {k: round(1e3 * v / done, 1) for k, v in stages.items()},
                 "total_s": round(total, 1),
+                "cpu_s": round(cpu, 1),
                 "final_pass_share": round(stages["final pass"] / total, 3),
                 "peak_rss_mb": round(m["peak_rss_mb"]),
                 "rss_mb_at_end_of_frames": rss[-1][1] if rss else None,

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from gsslam.mapping.keyframes import torch_threads
+from gsslam.mapping.levels import coarse_steps
 from gsslam.mapping.state import MapState, refined_poses
 from gsslam.mapping.window import adam_steps, run_stats
 
@@ -101,7 +102,8 @@ def finalize(
     ``final_iterations_per_keyframe`` steps they are visited in shuffled epochs; when a cap binds, after
     one epoch the steps go to the keyframes whose renders err most (:func:`error_picker`). Learning rates
     start at ``final_lr_scale`` x the configured ones and decay to 10 % of that over the pass; the flow
-    loss is weighted by ``final_lambda_flow``. Afterwards only transparent Gaussians are pruned (no
+    loss is weighted by ``final_lambda_flow``. The first ``final_coarse_share`` of the steps render at half
+    the mapper resolution (:mod:`gsslam.mapping.levels`). Afterwards only transparent Gaussians are pruned (no
     densification). ``progress(done, total)`` is called after every step. Returns stats.
     """
     cfg = state.cfg
@@ -139,6 +141,7 @@ def finalize(
     bounds = np.linspace(0, iters, rounds + 2).round().astype(int)
     densified = 0
     first = last = None
+    coarse = coarse_steps(cfg.final_coarse_share, iters)  # the pass's first steps, across its rounds
     with torch_threads(cfg.num_threads):
         reset_error_state(state)
         for r in range(rounds + 1):
@@ -149,6 +152,7 @@ def finalize(
             f, last = adam_steps(
                 state, n, pick, [], order, decay=0.1 ** (n / max(1, iters - 1)), lr_scale=lr0,
                 lambda_flow=cfg.final_lambda_flow, observe=observe,
+                coarse_steps=min(n, max(0, coarse - int(bounds[r]))),
             )  # fmt: skip
             first = f if first is None else first
             if r < rounds:  # densify where the whole map still errs; no error-based pruning
@@ -160,7 +164,7 @@ def finalize(
     pruned = prune_transparent(state)
     counts = np.array(list(visits.values()))
     stats = run_stats(
-        state, iters, t0, first, last, pruned=pruned, densified=densified, capped=capped,
+        state, iters, t0, first, last, pruned=pruned, densified=densified, capped=capped, coarse=coarse,
         uncapped_iterations=full, visits_min=int(counts.min()), visits_max=int(counts.max()),
     )  # fmt: skip
     log.info("final pass done: %.1f s, step PSNR %.2f -> %.2f dB", stats.get("seconds", 0.0),

@@ -154,3 +154,41 @@ def project_gaussians(
         visible = in_front & on_screen & torch.isfinite(u) & torch.isfinite(v)
         radii = torch.where(visible, radii, torch.zeros_like(radii))
     return Projected(means2d=means2d, cov2d=cov2d, conics=conics, depths=z, radii=radii, normals=normals)
+
+
+@torch.no_grad()
+def in_view(
+    means: Tensor,  # [N, 3] world
+    scales: Tensor,  # [N, 3] linear
+    T_cam_world: Tensor,  # [4, 4]
+    K: Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    near: float = 0.01,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Conservative frustum test: ``(keep [N] bool, centres [N, 2] px, z [N])``, no gradients.
+
+    ``keep`` is False only for Gaussians that :func:`project_gaussians` would give ``radii == 0``
+    (behind ``near``, or off the image by more than their radius), so rendering only the kept ones
+    draws the same image. The radius is bounded without the rotation: the 2D covariance's trace is at
+    most ``(f s_max / z)^2 (1 + lim^2) + 0.3`` per axis (``lim`` the clamp of ``x/z``), and the largest
+    eigenvalue at most the trace. ``centres`` and ``z`` are the projection of every centre (the values
+    :func:`project_gaussians` returns for them).
+    """
+    dtype = means.dtype
+    T = T_cam_world.detach().to(dtype)
+    Kd = K.detach().to(dtype)
+    p = means.detach() @ T[:3, :3].T + T[:3, 3]  # [N, 3]
+    x, y, z = p.unbind(-1)
+    fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
+    front = z > near
+    inv_z = 1.0 / torch.where(front, z, torch.ones_like(z))
+    u, v = fx * x * inv_z + cx, fy * y * inv_z + cy
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    lim_x = torch.maximum((width - cx) / fx, cx / fx) + 0.3 * tan_x
+    lim_y = torch.maximum((height - cy) / fy, cy / fy) + 0.3 * tan_y
+    s = scales.detach().amax(dim=-1) * inv_z  # [N]
+    trace = s * s * (fx * fx * (1 + lim_x * lim_x) + fy * fy * (1 + lim_y * lim_y)) + 2 * LOW_PASS
+    r = SIGMA_CUTOFF * torch.sqrt(trace) * 1.001 + 1.0  # px, >= the radius project_gaussians finds
+    keep = front & (u + r >= 0) & (u - r <= width - 1) & (v + r >= 0) & (v - r <= height - 1)
+    return keep, torch.stack([u, v], dim=-1), z

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from gsslam.mapping.projection import RasterizeError, check_inputs, project_gaussians
+from gsslam.mapping.projection import RasterizeError, check_inputs, in_view, project_gaussians
 from gsslam.mapping.rasterize_reference import composite_reference
 
 _log = logging.getLogger(__name__)
@@ -108,11 +108,18 @@ def render(
     background: Tensor | None = None,  # [3]
     near: float = 0.01,
     backend: str = "auto",
+    cull: bool = False,
 ) -> RenderOutput:
     """Render colour, depth, alpha and normals of a Gaussian map seen from ``T_cam_world``.
 
     Differentiable w.r.t. every Gaussian parameter and ``T_cam_world`` (gradients flow to whatever
     pose parameterization produced it). Pixel centres are at integer coordinates (OpenCV).
+
+    ``cull``: project and composite only the Gaussians a conservative frustum test keeps
+    (:func:`~gsslam.mapping.projection.in_view`; CPU backends). The images, and every gradient, are
+    those of the full render; of the per-Gaussian outputs, culled Gaussians get ``radii`` 0 (as
+    without culling), ``means2d`` / ``depths`` without gradient and a zero ``cov2d``. The cost of a
+    step then follows the Gaussians in view, not the size of the map.
     """
     if backend not in BACKENDS:
         raise RasterizeError(f"unknown rasterizer backend {backend!r}; choose one of {', '.join(BACKENDS)}")
@@ -120,6 +127,15 @@ def render(
         backend = "c"
     check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width, height)
     width, height = int(width), int(height)
+    if cull and not means.is_cuda:
+        keep, centres, z = in_view(means, scales, T_cam_world, K, width, height, near)
+        if not bool(keep.all()):
+            idx = keep.nonzero()[:, 0]
+            sub = render(
+                means[idx], quats[idx], scales[idx], opacities[idx], colors[idx], T_cam_world, K,
+                width, height, background, near, backend,
+            )  # fmt: skip
+            return _expand(sub, idx, centres, z)
     proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near)
     if backend == "gsplat" or (backend == "auto" and means.is_cuda and _gsplat_available()):
         _USED.add("gsplat")
@@ -168,6 +184,27 @@ def render(
         cov2d=proj.cov2d,
         depths=proj.depths,
         radii=proj.radii,
+    )
+
+
+def _expand(
+    sub: RenderOutput,
+    idx: Tensor,  # [M] int64 indices of the rendered Gaussians among N
+    centres: Tensor,  # [N, 2] px, projected centres of all Gaussians (no gradient)
+    z: Tensor,  # [N] camera z of all centres (no gradient)
+) -> RenderOutput:
+    """Per-Gaussian outputs of a render of the Gaussians ``idx``, back at the size of the whole map."""
+    n = centres.shape[0]
+    dt = sub.cov2d.dtype
+    return RenderOutput(
+        color=sub.color,
+        depth=sub.depth,
+        alpha=sub.alpha,
+        normal=sub.normal,
+        means2d=centres.to(sub.means2d.dtype).index_put((idx,), sub.means2d),
+        cov2d=torch.zeros(n, 2, 2, dtype=dt, device=centres.device).index_put((idx,), sub.cov2d),
+        depths=z.to(sub.depths.dtype).index_put((idx,), sub.depths),
+        radii=torch.zeros(n, dtype=sub.radii.dtype, device=centres.device).index_put((idx,), sub.radii),
     )
 
 

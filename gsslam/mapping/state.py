@@ -59,13 +59,15 @@ def render(
     """Render ``model`` (default: the state's) from ``T_cam_world`` at the mapper resolution.
 
     ``intrinsics`` renders another camera instead (e.g. the input's full resolution for evaluation).
+    Only the Gaussians in view are projected and composited (``cull``: the same images and gradients,
+    at a cost that follows the view, not the map).
     """
     m = state.model if model is None else model
     if intrinsics is not None:
         K = torch.tensor(intrinsics.K, dtype=torch.float32, device=state.device)
         return rasterize(
             m.means, m.quats, m.scales, m.opacities, m.rgb, T_cam_world, K,
-            intrinsics.width, intrinsics.height, backend=state.backend,
+            intrinsics.width, intrinsics.height, backend=state.backend, cull=True,
         )  # fmt: skip
     return rasterize(
         m.means,
@@ -78,6 +80,7 @@ def render(
         state.intrinsics.width,
         state.intrinsics.height,
         backend=state.backend,
+        cull=True,
     )
 
 

@@ -17,6 +17,7 @@ import torch
 
 from gsslam.mapping import losses as L
 from gsslam.mapping.keyframes import Keyframe, torch_threads
+from gsslam.mapping.levels import camera_matrix, coarse_intrinsics, coarse_keyframe
 from gsslam.mapping.pose_refine import pose_loss
 from gsslam.mapping.rasterize import RenderOutput
 from gsslam.mapping.state import MapState, render
@@ -81,6 +82,7 @@ def adam_steps(
     pose_prior_weight: float | None = None,
     lambda_flow: float | None = None,
     observe: Callable[[int, int, float], None] | None = None,
+    coarse_steps: int = 0,
 ) -> tuple[float | None, float | None]:
     """``iters`` Adam steps on the keyframes ``pick(it)`` returns; returns (first, last) step PSNR.
 
@@ -89,6 +91,7 @@ def adam_steps(
     exponentially to ``decay`` x their start over the steps. ``pose_prior_weight`` overrides
     ``lambda_pose_prior`` for the poses' anchor prior, ``lambda_flow`` the flow loss weight.
     ``observe(it, keyframe index, step PSNR)`` is called after every step (error tracking, progress).
+    The first ``coarse_steps`` steps render at the coarse level (:mod:`gsslam.mapping.levels`).
     """
     cfg, kfs = state.cfg, state.keyframes
     params = {k: v.detach().clone().requires_grad_(True) for k, v in state.model.params().items()}
@@ -112,7 +115,9 @@ def adam_steps(
     first = last = None
     for it in range(iters):
         idx = pick(it)
-        loss, psnr_val = step_loss(state, kfs[idx], idx in pose_kfs, win, pose_prior_weight, lambda_flow)
+        loss, psnr_val = step_loss(
+            state, kfs[idx], idx in pose_kfs, win, pose_prior_weight, lambda_flow, coarse=it < coarse_steps
+        )
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -136,14 +141,24 @@ def step_loss(
     win: list[int],
     pose_prior_weight: float | None = None,
     lambda_flow: float | None = None,
+    coarse: bool = False,
 ) -> tuple[torch.Tensor, float]:
     """The loss of one step at keyframe ``kf`` and its PSNR; updates the densification state.
 
     ``lambda_flow`` overrides ``cfg.lambda_flow`` (the final pass uses ``final_lambda_flow``).
+    ``coarse``: render at the coarse level against the keyframe reduced to it
+    (:mod:`gsslam.mapping.levels`); such a step has no flow term (flows live at the mapper resolution)
+    and leaves the densification state alone (its errors and radii are those of the mapper resolution).
     """
     cfg, m, dev = state.cfg, state.model, state.device
     w_flow = cfg.lambda_flow if lambda_flow is None else lambda_flow
-    out = render(state, kf.T_cam_world(dev, with_delta=True))
+    intr, K = None, state.K
+    if coarse:
+        intr = coarse_intrinsics(state.intrinsics)
+        K = camera_matrix(intr, state.K)
+        kf = coarse_keyframe(kf, intr.width, intr.height)
+        w_flow = 0.0
+    out = render(state, kf.T_cam_world(dev, with_delta=True), intrinsics=intr)
     loss = L.color_loss(out.color, kf.image, cfg.lambda_ssim)
     unit = kf.median_depth if cfg.depth_scale_free else 1.0
     loss = loss + cfg.lambda_depth * L.inverse_depth_l1(
@@ -151,7 +166,7 @@ def step_loss(
     )
     if cfg.lambda_depth_normal > 0:
         loss = loss + cfg.lambda_depth_normal * L.depth_normal_consistency(
-            out.depth, out.normal, state.K, mask=out.alpha.detach() > 0.5
+            out.depth, out.normal, K, mask=out.alpha.detach() > 0.5
         )
     loss = loss + cfg.lambda_scale * L.scale_regularizer(m.log_scales)
     if pose:
@@ -176,6 +191,8 @@ def step_loss(
         )
         loss = loss + w_flow * fl
         err = e if err is None else torch.where(torch.isfinite(e), e, err)
+    if coarse:
+        return loss, float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
     with torch.no_grad():
         if err is None:  # photometric analogue of the normalized error, at the Gaussians' pixels
             vis = visible(out)

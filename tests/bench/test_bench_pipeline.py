@@ -24,5 +24,6 @@ def test_lengths_report_stages_memory_and_a_chart(bundled_tum, tmp_path):
         assert set(r["ms_per_frame"]) == {"tracking", "map", "loops", "batch", "final pass", "outputs"}
         assert r["ms_per_frame"]["map"] > 0 and r["ms_per_frame"]["tracking"] > 0
         assert 0 < r["final_pass_share"] < 1 and r["peak_rss_mb"] > 100
+        assert r["cpu_s"] > 0
     assert len(res["rss_by_frame"]["40 frames"]) == 4  # every 10 frames
     assert (tmp_path / "rss.png").stat().st_size > 1000

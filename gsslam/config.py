@@ -68,6 +68,7 @@ class EncoderConfig:
     colour_focal_auto: bool = True  # RGB-D: estimate f_depth / f_colour from the first frames (frontend/colour_focal.py)
     colour_focal_frames: int = 40  # frames read for that estimate
     colour_focal_min_dev: float = 0.02  # correct intrinsics + register depth only when |ratio - 1| exceeds this
+    colour_focal_min_baseline_m: float = 0.01  # ... or when the estimated depth-colour baseline exceeds this
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
@@ -432,6 +433,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.rgbd_icp_auto_max_ratio": POS,
     "encoder.colour_focal_frames": _ge(8),
     "encoder.colour_focal_min_dev": Range(0.0, 0.5),
+    "encoder.colour_focal_min_baseline_m": Range(0.0, 0.2),
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,

@@ -15,10 +15,12 @@ candidate focal ratio ``k = f_depth / f_colour`` predicts where each colour pixe
     u_b' = c + (f_depth / k) [X'_x, X'_y] / X'_z,  X' = T_b_a X
 
 :func:`estimate_focal_ratio` scans ``k`` and keeps the one with the smallest truncated reprojection
-error over a few pairs at the start of the sequence (the baseline between the two cameras, ~2.5 cm,
-is ignored: it shifts pixels but does not scale them). :func:`register_frame` then hands the frame out
-with the colour focal length and its depth resampled into the colour camera's grid, so that every
-later stage (tracking, encoder, cross-submap flow, loops, map) sees a consistent camera.
+error over a few pairs at the start of the sequence, taking the given intrinsics as the depth
+camera's and the two cameras as concentric. :func:`reprojection_cost` is the general form: any colour
+and depth focal lengths and a baseline ``b`` (the depth camera's centre at ``x = b`` in the colour
+camera frame: the colour pixel's depth is read at ``c + f_depth (x_n - [b / z, 0])`` and the motion
+acts in the depth camera, ``X'_colour = T_b_a (X - b) + b``). :mod:`gsslam.frontend.depth_registration`
+fits it (ratio, baseline, and whose intrinsics were given) and registers the frames.
 """
 
 from __future__ import annotations
@@ -26,7 +28,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 from gsslam.frontend.encoder import depth_edge_mask
@@ -64,13 +65,17 @@ class FlowPair:
     T_b_a: np.ndarray  # [4, 4] ICP motion (depth camera) at the given intrinsics
 
 
-def pair_icp(pair: FlowPair, intr: CameraIntrinsics, strides: tuple[int, ...] = ICP_STRIDES) -> np.ndarray | None:
+def pair_icp(
+    pair: FlowPair, intr: CameraIntrinsics, strides: tuple[int, ...] = ICP_STRIDES
+) -> np.ndarray | None:
     """``T_b_a`` of the pair's depth images back-projected with ``intr`` (None when ICP refuses)."""
     icp = icp_point_to_plane(pair.raw_a, pair.raw_b, intr, np.eye(4), strides=strides)
     return icp.T_tgt_src if icp.ok else None
 
 
-def _pair(fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int) -> FlowPair | None:
+def _pair(
+    fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int
+) -> FlowPair | None:
     intr = fa.intrinsics
     icp = icp_point_to_plane(fa.depth, fb.depth, intr, np.eye(4), strides=ICP_STRIDES)
     if not icp.ok:
@@ -165,8 +170,11 @@ def mean_cost(
     return tot / max(cnt, 1), cnt
 
 
-def _cost(pair: FlowPair, k: float, intr: CameraIntrinsics) -> tuple[float, int]:  # given = depth, no baseline
-    return reprojection_cost(pair, pair.T_b_a, colour_intrinsics(intr, k), (intr.fx, intr.fy))
+def _cost(
+    pair: FlowPair, k: float, intr: CameraIntrinsics
+) -> tuple[float, int]:  # given = depth, no baseline
+    colour = replace(intr, fx=intr.fx / k, fy=intr.fy / k)
+    return reprojection_cost(pair, pair.T_b_a, colour, (intr.fx, intr.fy))
 
 
 def estimate_focal_ratio(
@@ -208,49 +216,3 @@ def estimate_focal_ratio(
     c1 = float(np.interp(1.0, ks, costs))
     ok = 0 < best < len(ks) - 1 and len(pairs) >= 3 and n >= 300
     return FocalEstimate(k_best, len(pairs), n, c1, float(costs[best]), ok)
-
-
-def colour_intrinsics(intr: CameraIntrinsics, ratio: float) -> CameraIntrinsics:
-    """The colour camera: focal lengths divided by ``ratio`` (= f_depth / f_colour), same principal point."""
-    return replace(intr, fx=intr.fx / ratio, fy=intr.fy / ratio)
-
-
-def register_depth(depth: np.ndarray, intr: CameraIntrinsics, ratio: float) -> np.ndarray:
-    """Depth [H, W] of the depth camera resampled at the colour pixels: ``d(c + ratio (u - c))``, nearest."""
-    h, w = depth.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    mx = (intr.cx + ratio * (u - intr.cx)).astype(np.float32)
-    my = (intr.cy + ratio * (v - intr.cy)).astype(np.float32)
-    out = cv2.remap(
-        depth.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-    )
-    return out
-
-
-def register_frame(frame: Frame, ratio: float) -> Frame:
-    """``frame`` with the colour focal length and its depth resampled into the colour camera's grid."""
-    intr = frame.intrinsics
-    depth = None if frame.depth is None else register_depth(frame.depth, intr, ratio)
-    return replace(frame, intrinsics=colour_intrinsics(intr, ratio), depth=depth)
-
-
-def focal_correction(
-    frames: list[Frame],  # the first frames (cfg.colour_focal_frames of them)
-    flow: FlowEstimator,
-    min_dev: float,
-) -> tuple[float, FocalEstimate | None]:
-    """The ratio to apply (1.0: leave the frames as they are) and the estimate it came from.
-
-    Only an estimate that is ``ok`` and off 1 by more than ``min_dev`` is applied: on registered,
-    calibrated data (TUM teddy) the estimate is 1.002, so nothing changes there.
-    """
-    if sum(f.depth is not None for f in frames) < 8:
-        return 1.0, None
-    est = estimate_focal_ratio(frames, flow)
-    apply = est.ok and abs(est.ratio - 1.0) > min_dev
-    log.info(
-        "colour focal: f_depth / f_colour = %.4f from %d pairs (%d px; %.2f -> %.2f px): %s",
-        est.ratio, est.pairs, est.points, est.cost_at_one, est.cost_at_best,
-        "applied (depth registered to colour)" if apply else "not applied",
-    )  # fmt: skip
-    return (float(est.ratio) if apply else 1.0), est

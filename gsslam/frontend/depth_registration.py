@@ -106,7 +106,9 @@ def _fit_fixed_motion(pairs, Ts, intr, given: str, k0: float | None, with_baseli
     else:
         k, inside = k0, True
     b = 0.0
-    for half_k, half_b, step_b in ((0.04, BASELINE_RANGE_M, 0.0025), (0.01, 0.005, 0.0005))[: 2 if with_baseline else 0]:
+    for half_k, half_b, step_b in ((0.04, BASELINE_RANGE_M, 0.0025), (0.01, 0.005, 0.0005))[
+        : 2 if with_baseline else 0
+    ]:
         bs = np.arange(b - half_b, b + half_b + 1e-9, step_b)
         cb = np.array([_scan_k(pairs, Ts, intr, given, np.array([k]), float(x))[0] for x in bs])
         b, _, _ = _parabola_min(bs, cb)
@@ -133,13 +135,19 @@ def _fit_colour_given(pairs, intr, with_baseline: bool):
     coarse = []
     for k in ks:
         Ts = _icp_at(pairs, intr, float(k), COARSE_ICP_STRIDES)
-        coarse.append(np.inf if Ts is None else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[2])
+        coarse.append(
+            np.inf if Ts is None else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[2]
+        )
     j = int(np.argmin(coarse))
     fine_ks = np.arange(ks[j] - COARSE_K_STEP / 2, ks[j] + COARSE_K_STEP / 2 + 1e-9, 0.01)
     fine = []
     for k in fine_ks:
         Ts = _icp_at(pairs, intr, float(k), ICP_STRIDES)
-        fine.append((np.inf, 0.0) if Ts is None else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[1:3][::-1])
+        fine.append(
+            (np.inf, 0.0)
+            if Ts is None
+            else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[1:3][::-1]
+        )
     costs = np.array([c for c, _ in fine])
     k, cost, _ = _parabola_min(fine_ks, costs)
     b = float(fine[int(np.argmin(costs))][1])
@@ -222,7 +230,12 @@ def reproject_depth(
     u = colour_intr.cx + colour_intr.fx * x / z
     v = colour_intr.cy + colour_intr.fy * y / z
     if colour_intr.fx > depth_intr.fx * 1.0001:
-        cands = [(np.floor(u), np.floor(v)), (np.floor(u), np.ceil(v)), (np.ceil(u), np.floor(v)), (np.ceil(u), np.ceil(v))]
+        cands = [
+            (np.floor(u), np.floor(v)),
+            (np.floor(u), np.ceil(v)),
+            (np.ceil(u), np.floor(v)),
+            (np.ceil(u), np.ceil(v)),
+        ]
     else:
         cands = [(np.rint(u), np.rint(v))]
     out = np.full(h * w, np.inf)
@@ -240,5 +253,7 @@ def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     intr = frame.intrinsics
     depth = frame.depth
     if depth is not None:
-        depth = reproject_depth(depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m)
+        depth = reproject_depth(
+            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m
+        )
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

@@ -266,7 +266,8 @@ def run_dataset(
             }
             if focal is not None:
                 extra["colour_focal"] = {
-                    "ratio_estimated": float(focal.ratio), "applied": not reg.is_identity(), "pairs": focal.pairs,
+                    "ratio_estimated": float(focal.ratio), "applied": not reg.is_identity(),
+                    "pairs": focal.pairs,
                     "baseline_m_estimated": float(focal.baseline_m), "intrinsics_given_for": focal.given,
                     "cost_px_at_1": focal.cost_registered, "cost_px_at_ratio": focal.cost,
                 }  # fmt: skip

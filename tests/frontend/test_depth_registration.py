@@ -31,7 +31,11 @@ def teddy(bundled_tum):
 
 
 def _misregistered(frames, report: str):
-    intr = TUM_FR3 if report == "colour" else replace(TUM_FR3, fx=TUM_FR3.fx * KINECT_RATIO, fy=TUM_FR3.fy * KINECT_RATIO)
+    intr = (
+        TUM_FR3
+        if report == "colour"
+        else replace(TUM_FR3, fx=TUM_FR3.fx * KINECT_RATIO, fy=TUM_FR3.fy * KINECT_RATIO)
+    )
     return [
         replace(f, depth=misregister_depth(f.depth, TUM_FR3, BASELINE_M, KINECT_RATIO), intrinsics=intr)
         for f in frames
@@ -39,9 +43,12 @@ def _misregistered(frames, report: str):
 
 
 def _correct(frames):
-    return registration_correction(frames, make_flow_estimator(FlowConfig()), min_dev=0.02, min_baseline_m=0.01)
+    return registration_correction(
+        frames, make_flow_estimator(FlowConfig()), min_dev=0.02, min_baseline_m=0.01
+    )
 
 
+@pytest.mark.slow  # ~35 s CPU each: the colour hypothesis reruns ICP on 15 focal lengths x 12 pairs
 @pytest.mark.parametrize("report", ["colour", "depth"])
 def test_misregistration_recovered(teddy, report):
     frames = _misregistered(teddy, report)
@@ -66,7 +73,10 @@ def test_reproject_depth_undoes_the_misregistration(teddy):
     mis = misregister_depth(f.depth, TUM_FR3, BASELINE_M, KINECT_RATIO)
     reg = DepthRegistration(KINECT_RATIO, BASELINE_M, "colour")
     depth_intr = reg.depth_intrinsics(TUM_FR3)
-    assert depth_intr.fx == pytest.approx(TUM_FR3.fx * KINECT_RATIO) and reg.colour_intrinsics(TUM_FR3) == TUM_FR3
+    assert (
+        depth_intr.fx == pytest.approx(TUM_FR3.fx * KINECT_RATIO)
+        and reg.colour_intrinsics(TUM_FR3) == TUM_FR3
+    )
     back = reproject_depth(mis, depth_intr, TUM_FR3, BASELINE_M)
     ok = np.isfinite(back) & np.isfinite(f.depth)
     assert ok.mean() > 0.6  # the depth camera sees ~81 % of the colour view

@@ -130,7 +130,11 @@ def _icp_at(pairs, intr: CameraIntrinsics, k: float, strides) -> list[np.ndarray
 
 
 def _fit_colour_given(pairs, intr, with_baseline: bool):
-    """Depth focal ``k f``: ICP on a coarse ``k`` grid (baseline fitted at each), then refined."""
+    """Depth focal ``k f``: ICP on a coarse ``k`` grid, then on a 0.01 grid around its best point.
+
+    At each grid point the baseline (and ``k`` within +-0.04, the ICP motions held at the grid point's)
+    is fitted; the grid point's cost is that fitted cost, and ``k`` is the parabola through the fine grid.
+    """
     ks = np.arange(K_RANGE[0] + COARSE_K_STEP, K_RANGE[1] - COARSE_K_STEP + 1e-9, COARSE_K_STEP)
     coarse = []
     for k in ks:

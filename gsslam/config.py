@@ -65,9 +65,10 @@ class EncoderConfig:
     rgbd_icp_auto_min_ratio: float = 0.96  # PnP / ICP rotation ratio below this: colour and depth disagree
     rgbd_icp_auto_max_ratio: float = 1.08  # above this (ICP itself turns ~3 % short on TUM teddy: 1.02-1.05)
     rgbd_icp_direct: bool = True  # and register each keyframe directly to the submap's frame 0 by ICP
-    colour_focal_auto: bool = True  # RGB-D: estimate f_depth / f_colour from the first frames (frontend/colour_focal.py)
+    colour_focal_auto: bool = True  # RGB-D: depth-to-colour registration from the first frames (depth_registration.py)
     colour_focal_frames: int = 40  # frames read for that estimate
     colour_focal_min_dev: float = 0.02  # correct intrinsics + register depth only when |ratio - 1| exceeds this
+    colour_focal_min_baseline_m: float = 0.01  # ... or |depth-colour baseline| exceeds this (m)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
 
@@ -433,6 +434,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.rgbd_icp_auto_max_ratio": POS,
     "encoder.colour_focal_frames": _ge(8),
     "encoder.colour_focal_min_dev": Range(0.0, 0.5),
+    "encoder.colour_focal_min_baseline_m": Range(0.0, 0.2),
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,

@@ -15,10 +15,12 @@ candidate focal ratio ``k = f_depth / f_colour`` predicts where each colour pixe
     u_b' = c + (f_depth / k) [X'_x, X'_y] / X'_z,  X' = T_b_a X
 
 :func:`estimate_focal_ratio` scans ``k`` and keeps the one with the smallest truncated reprojection
-error over a few pairs at the start of the sequence (the baseline between the two cameras, ~2.5 cm,
-is ignored: it shifts pixels but does not scale them). :func:`register_frame` then hands the frame out
-with the colour focal length and its depth resampled into the colour camera's grid, so that every
-later stage (tracking, encoder, cross-submap flow, loops, map) sees a consistent camera.
+error over a few pairs at the start of the sequence, taking the given intrinsics as the depth
+camera's and the two cameras as concentric. :func:`reprojection_cost` is the general form: any colour
+and depth focal lengths and a baseline ``b`` (the depth camera's centre at ``x = b`` in the colour
+camera frame: the colour pixel's depth is read at ``c + f_depth (x_n - [b / z, 0])`` and the motion
+acts in the depth camera, ``X'_colour = T_b_a (X - b) + b``). :mod:`gsslam.frontend.depth_registration`
+fits it (ratio, baseline, and whose intrinsics were given) and registers the frames.
 """
 
 from __future__ import annotations
@@ -26,7 +28,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 from gsslam.frontend.encoder import depth_edge_mask
@@ -39,6 +40,7 @@ log = logging.getLogger(__name__)
 
 GRID_STRIDE_PX = 6  # colour pixels sampled every this many pixels
 TRUNCATE_PX = 4.0  # reprojection errors beyond this count as this (flow outliers, occlusions)
+ICP_STRIDES = TRACK_STRIDES + (4,)  # full resolution down to 160x120 points
 
 
 @dataclass(frozen=True)
@@ -52,16 +54,30 @@ class FocalEstimate:
 
 
 @dataclass(frozen=True)
-class _Pair:
+class FlowPair:
+    """One frame pair for the registration estimates: colour flow, the depth images and their ICP motion."""
+
     uv_a: np.ndarray  # [M, 2] colour pixels in frame a
     uv_b: np.ndarray  # [M, 2] their flow targets in frame b
-    depth_a: np.ndarray  # [H, W] metres (depth camera grid), NaN invalid
-    T_b_a: np.ndarray  # [4, 4] ICP motion (depth camera)
+    depth_a: np.ndarray  # [H, W] metres (depth camera grid), NaN invalid and at depth edges
+    raw_a: np.ndarray  # [H, W] float32 metres, frame a's depth as given (for ICP at other intrinsics)
+    raw_b: np.ndarray  # [H, W] float32 metres, frame b's
+    T_b_a: np.ndarray  # [4, 4] ICP motion (depth camera) at the given intrinsics
 
 
-def _pair(fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int) -> _Pair | None:
+def pair_icp(
+    pair: FlowPair, intr: CameraIntrinsics, strides: tuple[int, ...] = ICP_STRIDES
+) -> np.ndarray | None:
+    """``T_b_a`` of the pair's depth images back-projected with ``intr`` (None when ICP refuses)."""
+    icp = icp_point_to_plane(pair.raw_a, pair.raw_b, intr, np.eye(4), strides=strides)
+    return icp.T_tgt_src if icp.ok else None
+
+
+def _pair(
+    fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int
+) -> FlowPair | None:
     intr = fa.intrinsics
-    icp = icp_point_to_plane(fa.depth, fb.depth, intr, np.eye(4), strides=TRACK_STRIDES + (4,))
+    icp = icp_point_to_plane(fa.depth, fb.depth, intr, np.eye(4), strides=ICP_STRIDES)
     if not icp.ok:
         return None
     fw = flow(fa.image, fb.image)
@@ -76,24 +92,89 @@ def _pair(fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, m
     uv_a = np.stack([us, vs], 1).astype(np.float64)
     uv_b = uv_a + fw[vs, us].astype(np.float64)
     depth = np.where(depth_edge_mask(fa.depth), np.nan, fa.depth).astype(np.float64)
-    return _Pair(uv_a, uv_b, depth, icp.T_tgt_src)
+    raw_a, raw_b = (np.asarray(d, dtype=np.float32) for d in (fa.depth, fb.depth))
+    return FlowPair(uv_a, uv_b, depth, raw_a, raw_b, icp.T_tgt_src)
 
 
-def _cost(pair: _Pair, k: float, intr: CameraIntrinsics) -> tuple[float, int]:  # -> (sum, count)
-    c = np.array([intr.cx, intr.cy])
-    f = np.array([intr.fx, intr.fy]) / k  # colour focal lengths
+def flow_pairs(
+    frames: list[Frame],
+    flow: FlowEstimator,
+    gap: int = 4,
+    max_pairs: int = 12,
+    min_rotation_deg: float = 1.0,
+    max_points: int = 3000,
+    seed: int = 0,
+) -> list[FlowPair]:
+    """Pairs ``(i, i + gap)`` (i every ``gap // 2``) whose ICP motion turns >= ``min_rotation_deg``."""
+    rng = np.random.default_rng(seed)
+    pairs: list[FlowPair] = []
+    for i in range(0, len(frames) - gap, max(1, gap // 2)):
+        fa, fb = frames[i], frames[i + gap]
+        if fa.depth is None or fb.depth is None:
+            continue
+        p = _pair(fa, fb, flow, rng, max_points)
+        if p is None or np.degrees(np.linalg.norm(so3_log(p.T_b_a[:3, :3]))) < min_rotation_deg:
+            continue
+        pairs.append(p)
+        if len(pairs) >= max_pairs:
+            break
+    return pairs
+
+
+def reprojection_cost(
+    pair: FlowPair,
+    T_b_a: np.ndarray,  # [4, 4] depth-camera motion
+    colour: CameraIntrinsics,  # of the colour image
+    f_depth: tuple[float, float],  # (fx, fy) of the depth camera (same principal point)
+    baseline_m: float = 0.0,  # the depth camera's centre in the colour camera frame, along x
+) -> tuple[float, int]:  # -> (sum of truncated errors in px, count)
+    """Move each flow pixel by ``T_b_a`` through its depth; compare with the flow target (module doc).
+
+    With a baseline the depth pixel of a colour pixel depends on its depth: found by two fixed-point
+    steps from the zero-baseline pixel.
+    """
+    c = np.array([colour.cx, colour.cy])
+    fc = np.array([colour.fx, colour.fy])
+    fd = np.asarray(f_depth, dtype=np.float64)
     h, w = pair.depth_a.shape
-    pd = np.rint(c + k * (pair.uv_a - c)).astype(int)  # depth-camera pixel of each colour pixel
-    inside = (pd[:, 0] >= 0) & (pd[:, 0] < w) & (pd[:, 1] >= 0) & (pd[:, 1] < h)
-    z = np.full(len(pd), np.nan)
-    z[inside] = pair.depth_a[pd[inside, 1], pd[inside, 0]]
+    xn = (pair.uv_a - c) / fc  # [M, 2] normalised colour rays
+    z = np.full(len(xn), np.inf)  # first step: the zero-baseline pixel
+    for _ in range(3 if baseline_m else 1):
+        pd = np.rint(c + fd * (xn - np.array([baseline_m, 0.0]) / z[:, None])).astype(int)
+        inside = (pd[:, 0] >= 0) & (pd[:, 0] < w) & (pd[:, 1] >= 0) & (pd[:, 1] < h)
+        zz = np.full(len(pd), np.nan)
+        zz[inside] = pair.depth_a[pd[inside, 1], pd[inside, 0]]
+        z = np.where(np.isfinite(zz) & (zz > 0), zz, z)
+    z = zz
     ok = np.isfinite(z) & (z > 0)
-    X = np.concatenate([(pair.uv_a[ok] - c) / f * z[ok, None], z[ok, None]], 1)
-    Xb = X @ pair.T_b_a[:3, :3].T + pair.T_b_a[:3, 3]
+    b = np.array([baseline_m, 0.0, 0.0])
+    X = np.concatenate([xn[ok] * z[ok, None], z[ok, None]], 1) - b  # depth camera frame
+    Xb = X @ T_b_a[:3, :3].T + T_b_a[:3, 3] + b  # colour camera frame b
     front = Xb[:, 2] > 1e-3
-    uv = c + f * Xb[front, :2] / Xb[front, 2:3]
+    uv = c + fc * Xb[front, :2] / Xb[front, 2:3]
     err = np.linalg.norm(uv - pair.uv_b[ok][front], axis=1)
     return float(np.minimum(err, TRUNCATE_PX).sum()), int(front.sum())
+
+
+def mean_cost(
+    pairs: list[FlowPair],
+    Ts: list[np.ndarray],
+    colour: CameraIntrinsics,
+    f_depth: tuple[float, float],
+    baseline_m: float = 0.0,
+) -> tuple[float, int]:  # -> (mean truncated error px over all pairs, points)
+    tot, cnt = 0.0, 0
+    for p, T in zip(pairs, Ts):
+        s, m = reprojection_cost(p, T, colour, f_depth, baseline_m)
+        tot, cnt = tot + s, cnt + m
+    return tot / max(cnt, 1), cnt
+
+
+def _cost(
+    pair: FlowPair, k: float, intr: CameraIntrinsics
+) -> tuple[float, int]:  # given = depth, no baseline
+    colour = replace(intr, fx=intr.fx / k, fy=intr.fy / k)
+    return reprojection_cost(pair, pair.T_b_a, colour, (intr.fx, intr.fy))
 
 
 def estimate_focal_ratio(
@@ -112,18 +193,7 @@ def estimate_focal_ratio(
     the focal length observable) are used, up to ``max_pairs``.
     """
     ks = np.arange(0.80, 1.2501, 0.0025) if ratios is None else np.asarray(ratios, dtype=np.float64)
-    rng = np.random.default_rng(seed)
-    pairs: list[_Pair] = []
-    for i in range(0, len(frames) - gap, max(1, gap // 2)):
-        fa, fb = frames[i], frames[i + gap]
-        if fa.depth is None or fb.depth is None:
-            continue
-        p = _pair(fa, fb, flow, rng, max_points)
-        if p is None or np.degrees(np.linalg.norm(so3_log(p.T_b_a[:3, :3]))) < min_rotation_deg:
-            continue
-        pairs.append(p)
-        if len(pairs) >= max_pairs:
-            break
+    pairs = flow_pairs(frames, flow, gap, max_pairs, min_rotation_deg, max_points, seed)
     intr = frames[0].intrinsics
     if not pairs:
         return FocalEstimate(1.0, 0, 0, float("nan"), float("nan"), False)
@@ -146,49 +216,3 @@ def estimate_focal_ratio(
     c1 = float(np.interp(1.0, ks, costs))
     ok = 0 < best < len(ks) - 1 and len(pairs) >= 3 and n >= 300
     return FocalEstimate(k_best, len(pairs), n, c1, float(costs[best]), ok)
-
-
-def colour_intrinsics(intr: CameraIntrinsics, ratio: float) -> CameraIntrinsics:
-    """The colour camera: focal lengths divided by ``ratio`` (= f_depth / f_colour), same principal point."""
-    return replace(intr, fx=intr.fx / ratio, fy=intr.fy / ratio)
-
-
-def register_depth(depth: np.ndarray, intr: CameraIntrinsics, ratio: float) -> np.ndarray:
-    """Depth [H, W] of the depth camera resampled at the colour pixels: ``d(c + ratio (u - c))``, nearest."""
-    h, w = depth.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    mx = (intr.cx + ratio * (u - intr.cx)).astype(np.float32)
-    my = (intr.cy + ratio * (v - intr.cy)).astype(np.float32)
-    out = cv2.remap(
-        depth.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-    )
-    return out
-
-
-def register_frame(frame: Frame, ratio: float) -> Frame:
-    """``frame`` with the colour focal length and its depth resampled into the colour camera's grid."""
-    intr = frame.intrinsics
-    depth = None if frame.depth is None else register_depth(frame.depth, intr, ratio)
-    return replace(frame, intrinsics=colour_intrinsics(intr, ratio), depth=depth)
-
-
-def focal_correction(
-    frames: list[Frame],  # the first frames (cfg.colour_focal_frames of them)
-    flow: FlowEstimator,
-    min_dev: float,
-) -> tuple[float, FocalEstimate | None]:
-    """The ratio to apply (1.0: leave the frames as they are) and the estimate it came from.
-
-    Only an estimate that is ``ok`` and off 1 by more than ``min_dev`` is applied: on registered,
-    calibrated data (TUM teddy) the estimate is 1.002, so nothing changes there.
-    """
-    if sum(f.depth is not None for f in frames) < 8:
-        return 1.0, None
-    est = estimate_focal_ratio(frames, flow)
-    apply = est.ok and abs(est.ratio - 1.0) > min_dev
-    log.info(
-        "colour focal: f_depth / f_colour = %.4f from %d pairs (%d px; %.2f -> %.2f px): %s",
-        est.ratio, est.pairs, est.points, est.cost_at_one, est.cost_at_best,
-        "applied (depth registered to colour)" if apply else "not applied",
-    )  # fmt: skip
-    return (float(est.ratio) if apply else 1.0), est

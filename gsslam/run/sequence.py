@@ -31,7 +31,7 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
-from gsslam.frontend.colour_focal import colour_intrinsics, focal_correction, register_frame
+from gsslam.frontend.depth_registration import IDENTITY, register_frame, registration_correction
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.run.checkpoint import (
     CheckpointSchedule,
@@ -213,10 +213,10 @@ def run_dataset(
 
         imu_stage = make_imu_stage(cfg, ds)
     with RunFolder(out, overwrite=overwrite, resume=resume):
-        ratio, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
-        if ratio != 1.0:  # unregistered depth: registered by the focal ratio, the baseline's parallax stays
-            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # so poses come from depth (ICP)
-        pipe = Pipeline(cfg, colour_intrinsics(ds.intrinsics, ratio))  # imports the heavy modules first
+        reg, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
+        if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
+            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
+        pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics))  # imports the heavy modules first
         if imu_stage is not None:
             pipe.add_plugin(imu_stage)
         start, done, seconds_before, load_seconds = 0, 0, 0.0, None
@@ -240,7 +240,7 @@ def run_dataset(
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    pipe.process(frame if ratio == 1.0 else register_frame(frame, ratio))
+                    pipe.process(register_frame(frame, reg))
                     done += 1
                     if progress is not None:
                         progress(done, n, done / max(time.perf_counter() - t0 + seconds_before, 1e-9))
@@ -266,8 +266,10 @@ def run_dataset(
             }
             if focal is not None:
                 extra["colour_focal"] = {
-                    "ratio_estimated": float(focal.ratio), "applied": ratio != 1.0, "pairs": focal.pairs,
-                    "cost_px_at_1": focal.cost_at_one, "cost_px_at_ratio": focal.cost_at_best,
+                    "ratio_estimated": float(focal.ratio), "applied": not reg.is_identity(),
+                    "pairs": focal.pairs,
+                    "baseline_m_estimated": float(focal.baseline_m), "intrinsics_given_for": focal.given,
+                    "cost_px_at_1": focal.cost_registered, "cost_px_at_ratio": focal.cost,
                 }  # fmt: skip
             if imu_stage is not None:
                 from gsslam.run.imu import imu_metrics
@@ -280,13 +282,17 @@ def run_dataset(
     return result
 
 
-def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (ratio to apply, FocalEstimate | None)
-    """RGB-D: the colour camera's focal length from the first frames (frontend/colour_focal.py)."""
+def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (registration to apply, its estimate | None)
+    """RGB-D: depth-to-colour registration from the first frames (frontend/depth_registration.py)."""
     if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
-        return 1.0, None
+        return IDENTITY, None
     n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))
     frames = [ds[i] for i in range(n)]
-    return focal_correction(frames, make_flow_estimator(cfg.flow), cfg.encoder.colour_focal_min_dev)
+    enc = cfg.encoder
+    return registration_correction(
+        frames, make_flow_estimator(cfg.flow), min_dev=enc.colour_focal_min_dev,
+        min_baseline_m=enc.colour_focal_min_baseline_m,
+    )  # fmt: skip
 
 
 class RunError(GsslamError):

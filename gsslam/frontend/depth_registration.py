@@ -1,0 +1,263 @@
+"""Depth-to-colour registration from the data: focal ratio, baseline, and whose intrinsics were given.
+
+An unregistered RGB-D sensor (Kinect v1) hands out depth in the depth camera's pixel grid. Two things
+separate it from the colour camera: the focal lengths (``k = f_depth / f_colour``, ~1.114) and the
+baseline (the depth camera ~2.5 cm to the side along x). A dataset hands out *one* set of intrinsics,
+and which camera they belong to varies: 7-Scenes gives the depth camera's (585 px) for both images,
+others give the colour camera's. :mod:`gsslam.frontend.colour_focal` assumed the former; on data that
+gives the colour intrinsics it found a compromise (1.076 for 1.114) and then divided the correct colour
+focal length by it (docs/results.md, "RGB-D accuracy, session 5").
+
+Here both are estimated from the same evidence (ICP motion of the depth images + colour flow, the
+truncated reprojection error of :func:`gsslam.frontend.colour_focal.reprojection_cost`), under two
+hypotheses about the given focal length ``f``:
+
+- ``given = "depth"``: the depth camera has ``f`` (ICP once at ``f``), the colour camera ``f / k``;
+- ``given = "colour"``: the colour camera has ``f``, the depth camera ``k f`` (ICP rerun at every
+  candidate ``k``: back-projecting depth with a wrong focal length stretches the scene sideways, which
+  a rigid motion cannot explain, so the focal lengths are observable, not only their ratio).
+
+For each hypothesis ``k`` and the baseline ``b`` are fitted (scans, coordinate descent); the
+hypothesis with the smaller error wins. :func:`register_frame` then hands every frame out with the
+colour intrinsics and its depth re-projected into the colour camera (z-buffer: the nearest surface
+wins), so that later stages see registered RGB-D.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from gsslam.frontend.colour_focal import (
+    ICP_STRIDES,
+    FlowPair,
+    flow_pairs,
+    mean_cost,
+    pair_icp,
+)
+from gsslam.frontend.flow import FlowEstimator
+from gsslam.types import CameraIntrinsics, Frame
+
+log = logging.getLogger(__name__)
+
+GIVEN = ("depth", "colour")
+K_RANGE = (0.80, 1.25)  # scanned f_depth / f_colour
+BASELINE_RANGE_M = 0.06  # scanned |baseline|
+COARSE_K_STEP = 0.04  # the colour hypothesis reruns ICP on this grid, then refines
+COARSE_ICP_STRIDES = ICP_STRIDES[:-1]  # its coarse grid uses ICP without the finest level
+
+
+@dataclass(frozen=True)
+class DepthRegistration:
+    """The depth camera relative to the colour camera, and whose focal length the dataset gave."""
+
+    ratio: float = 1.0  # k = f_depth / f_colour
+    baseline_m: float = 0.0  # the depth camera's centre in the colour camera frame, along x (metres)
+    given: str = "depth"  # the dataset's fx, fy belong to this camera
+    cost: float = float("nan")  # mean truncated reprojection error (px) at this registration
+    cost_registered: float = float("nan")  # at k = 1, no baseline (the data taken as registered)
+    pairs: int = 0
+    points: int = 0
+    ok: bool = False  # enough pairs and points, minimum inside the scanned range
+
+    def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
+        s = 1.0 / self.ratio if self.given == "depth" else 1.0
+        return replace(intr, fx=intr.fx * s, fy=intr.fy * s)
+
+    def depth_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
+        s = 1.0 if self.given == "depth" else self.ratio
+        return replace(intr, fx=intr.fx * s, fy=intr.fy * s)
+
+    def is_identity(self) -> bool:
+        return self.ratio == 1.0 and self.baseline_m == 0.0
+
+
+IDENTITY = DepthRegistration(ok=True)
+
+
+def _scan_k(pairs, Ts, intr: CameraIntrinsics, given: str, ks: np.ndarray, b: float) -> np.ndarray:
+    out = np.empty(len(ks))
+    for j, k in enumerate(ks):
+        reg = DepthRegistration(float(k), b, given)
+        d = reg.depth_intrinsics(intr)
+        out[j] = mean_cost(pairs, Ts, reg.colour_intrinsics(intr), (d.fx, d.fy), b)[0]
+    return out
+
+
+def _parabola_min(xs: np.ndarray, cs: np.ndarray) -> tuple[float, float, bool]:  # -> (x, cost, inside)
+    j = int(np.argmin(cs))
+    x = float(xs[j])
+    inside = 0 < j < len(xs) - 1
+    if inside:
+        a, b, c = cs[j - 1], cs[j], cs[j + 1]
+        den = a - 2 * b + c
+        if den > 0:
+            x += 0.5 * (a - c) / den * float(xs[j + 1] - xs[j])
+    return x, float(cs[j]), inside
+
+
+def _fit_fixed_motion(pairs, Ts, intr, given: str, k0: float | None, with_baseline: bool):
+    """(k, b, cost, inside) for fixed ICP motions: k scan, then alternating baseline / k scans."""
+    if k0 is None:
+        ks = np.arange(K_RANGE[0], K_RANGE[1] + 1e-9, 0.0025)
+        k, _, inside = _parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, 0.0))
+    else:
+        k, inside = k0, True
+    b = 0.0
+    for half_k, half_b, step_b in ((0.04, BASELINE_RANGE_M, 0.0025), (0.01, 0.005, 0.0005))[
+        : 2 if with_baseline else 0
+    ]:
+        bs = np.arange(b - half_b, b + half_b + 1e-9, step_b)
+        cb = np.array([_scan_k(pairs, Ts, intr, given, np.array([k]), float(x))[0] for x in bs])
+        b, _, _ = _parabola_min(bs, cb)
+        ks = np.arange(k - half_k, k + half_k + 1e-9, 0.0025)
+        k, _, _ = _parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, b))
+    cost = float(_scan_k(pairs, Ts, intr, given, np.array([k]), b)[0])
+    return k, b, cost, inside
+
+
+def _fit_depth_given(pairs, intr, with_baseline: bool):
+    Ts = [p.T_b_a for p in pairs]
+    return _fit_fixed_motion(pairs, Ts, intr, "depth", None, with_baseline)
+
+
+def _icp_at(pairs, intr: CameraIntrinsics, k: float, strides) -> list[np.ndarray] | None:
+    d = replace(intr, fx=intr.fx * k, fy=intr.fy * k)
+    Ts = [pair_icp(p, d, strides) for p in pairs]
+    return None if any(T is None for T in Ts) else Ts
+
+
+def _fit_colour_given(pairs, intr, with_baseline: bool):
+    """Depth focal ``k f``: ICP on a coarse ``k`` grid, then on a 0.01 grid around its best point.
+
+    At each grid point the baseline (and ``k`` within +-0.04, the ICP motions held at the grid point's)
+    is fitted; the grid point's cost is that fitted cost, and ``k`` is the parabola through the fine grid.
+    """
+    ks = np.arange(K_RANGE[0] + COARSE_K_STEP, K_RANGE[1] - COARSE_K_STEP + 1e-9, COARSE_K_STEP)
+    coarse = []
+    for k in ks:
+        Ts = _icp_at(pairs, intr, float(k), COARSE_ICP_STRIDES)
+        coarse.append(
+            np.inf if Ts is None else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[2]
+        )
+    j = int(np.argmin(coarse))
+    fine_ks = np.arange(ks[j] - COARSE_K_STEP / 2, ks[j] + COARSE_K_STEP / 2 + 1e-9, 0.01)
+    fine = []
+    for k in fine_ks:
+        Ts = _icp_at(pairs, intr, float(k), ICP_STRIDES)
+        fine.append(
+            (np.inf, 0.0)
+            if Ts is None
+            else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[1:3][::-1]
+        )
+    costs = np.array([c for c, _ in fine])
+    k, cost, _ = _parabola_min(fine_ks, costs)
+    b = float(fine[int(np.argmin(costs))][1])
+    inside = 0 < j < len(ks) - 1 and np.isfinite(cost)
+    return k, b, cost, inside
+
+
+def fit_registration(
+    pairs: list[FlowPair],  # from colour_focal.flow_pairs
+    intr: CameraIntrinsics,  # as given with the frames
+    hypotheses: tuple[str, ...] = GIVEN,
+    with_baseline: bool = True,
+) -> DepthRegistration:
+    """The registration with the smallest reprojection error over ``hypotheses`` (module doc)."""
+    if not pairs:
+        return DepthRegistration()
+    c1, n = mean_cost(pairs, [p.T_b_a for p in pairs], intr, (intr.fx, intr.fy))
+    best = DepthRegistration()
+    for given in hypotheses:
+        fit = _fit_depth_given if given == "depth" else _fit_colour_given
+        k, b, cost, inside = fit(pairs, intr, with_baseline)
+        log.info("registration if the intrinsics are the %s camera's: k %.4f, baseline %.1f mm, %.3f px",
+                 given, k, 1000 * b, cost)  # fmt: skip
+        if not cost >= best.cost:  # the first, or a smaller error
+            ok = inside and len(pairs) >= 3 and n >= 300
+            best = DepthRegistration(float(k), float(b), given, cost, c1, len(pairs), n, ok)
+    return best
+
+
+def estimate_registration(frames: list[Frame], flow: FlowEstimator, **kw) -> DepthRegistration:
+    """:func:`fit_registration` on the pairs of ``frames`` (keyword arguments passed on)."""
+    return fit_registration(flow_pairs(frames, flow), frames[0].intrinsics, **kw)
+
+
+def registration_correction(
+    frames: list[Frame],
+    flow: FlowEstimator,
+    min_dev: float,  # |k - 1| that counts as unregistered
+    min_baseline_m: float,  # |baseline| that counts as unregistered
+) -> tuple[DepthRegistration, DepthRegistration | None]:
+    """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
+
+    The depth-given fit runs first (ICP once); only when it finds the data unregistered is the
+    colour-given hypothesis (ICP on a grid of focal lengths) tried as well. On registered TUM teddy the
+    depth-given fit finds k = 1.00, baseline ~0: nothing changes there.
+    """
+    if sum(f.depth is not None for f in frames) < 8:
+        return IDENTITY, None
+    pairs = flow_pairs(frames, flow)
+    intr = frames[0].intrinsics
+    est = fit_registration(pairs, intr, hypotheses=("depth",))
+    if est.ok and (abs(est.ratio - 1.0) > min_dev or abs(est.baseline_m) > min_baseline_m):
+        est = fit_registration(pairs, intr)
+    apply = est.ok and (abs(est.ratio - 1.0) > min_dev or abs(est.baseline_m) > min_baseline_m)
+    log.info(
+        "depth registration: f_depth / f_colour = %.4f, baseline %.1f mm, given intrinsics of the %s camera, "
+        "from %d pairs (%d px; %.2f -> %.2f px): %s",
+        est.ratio, 1000 * est.baseline_m, est.given, est.pairs, est.points, est.cost_registered, est.cost,
+        "applied" if apply else "not applied",
+    )  # fmt: skip
+    return (est if apply else IDENTITY), est
+
+
+def reproject_depth(
+    depth: np.ndarray,  # [H, W] metres in the depth camera's grid, NaN invalid
+    depth_intr: CameraIntrinsics,
+    colour_intr: CameraIntrinsics,
+    baseline_m: float,  # the depth camera's centre in the colour camera frame, along x
+) -> np.ndarray:  # [H, W] float32 metres at the colour pixels, NaN where nothing lands
+    """Depth seen from the colour camera: back-project, shift by the baseline, project, nearest wins.
+
+    A magnifying projection (colour focal longer than depth's) fills the up-to-4 pixels around each
+    projection so that no cracks open; otherwise each point lands on its nearest pixel.
+    """
+    h, w = depth.shape
+    vs, us = np.nonzero(np.isfinite(depth) & (depth > 0))
+    z = depth[vs, us].astype(np.float64)
+    x = (us - depth_intr.cx) / depth_intr.fx * z + baseline_m
+    y = (vs - depth_intr.cy) / depth_intr.fy * z
+    u = colour_intr.cx + colour_intr.fx * x / z
+    v = colour_intr.cy + colour_intr.fy * y / z
+    if colour_intr.fx > depth_intr.fx * 1.0001:
+        cands = [
+            (np.floor(u), np.floor(v)),
+            (np.floor(u), np.ceil(v)),
+            (np.ceil(u), np.floor(v)),
+            (np.ceil(u), np.ceil(v)),
+        ]
+    else:
+        cands = [(np.rint(u), np.rint(v))]
+    out = np.full(h * w, np.inf)
+    for uu, vv in cands:
+        ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+        np.minimum.at(out, (vv[ok] * w + uu[ok]).astype(np.int64), z[ok])
+    out[~np.isfinite(out)] = np.nan
+    return out.reshape(h, w).astype(np.float32)
+
+
+def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
+    """``frame`` (with the dataset's intrinsics) with the colour intrinsics and depth in the colour grid."""
+    if reg.is_identity():
+        return frame
+    intr = frame.intrinsics
+    depth = frame.depth
+    if depth is not None:
+        depth = reproject_depth(
+            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m
+        )
+    return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

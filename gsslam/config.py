@@ -196,6 +196,8 @@ class LoopConfig:
     rejoin_min_inliers: int = 12  # mono chains re-joined: inliers per submap pair and of the pooled Sim(3)
     rejoin_min_inlier_ratio: float = 0.08  # mono chains re-joined: inliers / matches per submap pair
     rejoin_min_fitness: float = 0.3  # mono chains re-joined: new points on the earlier surface after ICP
+    mono_sigma_from_residual: bool = True  # mono: loop residual in submap units, sigma = the loop's inlier RMS (else graph.loop_sigma_m, world units)
+    mono_sigma_min_rel: float = 0.25  # mono: floor of that sigma, as a fraction of the loop's inlier distance
 
 
 @dataclass(frozen=True)
@@ -541,6 +543,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "loop.rejoin_min_inliers": _ge(3),
     "loop.rejoin_min_inlier_ratio": UNIT,
     "loop.rejoin_min_fitness": UNIT,
+    "loop.mono_sigma_min_rel": POS,
     "pipeline.track_points": _ge(8),
     "pipeline.min_photo_consistency": UNIT,
     "pipeline.min_pnp_inliers": _ge(4),

@@ -176,8 +176,14 @@ class SubmapGraph:
         except ValueError as e:
             raise GraphError(f"registration on submap {submap}: {e}") from e
 
-    def add_loop(self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None) -> int:
-        """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames."""
+    def add_loop(
+        self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None, local_units: bool = False
+    ) -> int:
+        """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames.
+
+        ``sigma``: per point, world units (default ``loop_sigma_m``); with ``local_units`` (mono) the
+        residual and ``sigma`` are in submap i's units (:mod:`gsslam.factors.loop_points`), so the loop
+        cannot be met by shrinking the chain's scale."""
         for s in (i, m):
             if not 0 <= s < len(self._subs):
                 raise GraphError(f"loop names submap {s} but only {len(self._subs)} submaps exist")
@@ -185,6 +191,8 @@ class SubmapGraph:
             raise GraphError("a loop needs two different submaps")
         sig = self.cfg.loop_sigma_m if sigma is None else sigma
         try:
+            if local_units:
+                return self._add(spec("relative_point", submap_key(i), submap_key(m), X_i, X_m, sig))
             return self._add(spec("point", submap_key(i), submap_key(m), X_i, X_m, sig))
         except ValueError as e:
             raise GraphError(f"loop {i}-{m}: {e}") from e

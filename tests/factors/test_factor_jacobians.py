@@ -12,9 +12,12 @@ from gsslam.factors import (
     make_flow_factor,
     make_keyframe_pose_factor,
     make_point_factor,
+    make_relative_point_factor,
     make_scale_factor,
     make_scale_prior_factor,
     make_submap_alignment_factor,
+    to_gtsam,
+    to_matrix,
 )
 from helpers.factors import analytic_jacobians, numeric_jacobians, random_value
 
@@ -51,6 +54,26 @@ def test_point_jacobians(group):
     X_a, X_b = rng.normal(size=(20, 3)) * 3, rng.normal(size=(20, 3)) * 3
     f = make_point_factor(S(0), S(1), X_a, X_b, rng.uniform(0.01, 0.1, 20), group)
     _assert_jacobians(f, _values(rng, group))
+
+
+def test_relative_point_jacobians():
+    rng = np.random.default_rng(12)
+    X_a, X_b = rng.normal(size=(20, 3)) * 3, rng.normal(size=(20, 3)) * 3
+    f = make_relative_point_factor(S(0), S(1), X_a, X_b, rng.uniform(0.01, 0.1, 20))
+    _assert_jacobians(f, _values(rng, "sim3"))
+
+
+def test_relative_point_residual_ignores_a_common_scale():
+    """Scaling both submaps (and the world) leaves the residual in submap-a units unchanged."""
+    rng = np.random.default_rng(13)
+    X_a, X_b = rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
+    rel, world = make_relative_point_factor(S(0), S(1), X_a, X_b, 0.1), make_point_factor(S(0), S(1), X_a, X_b, 0.1)
+    v = _values(rng, "sim3")
+    shrunk = gtsam.Values()
+    for k in (S(0), S(1)):  # the world shrunk by 2: S' = diag(0.5, 0.5, 0.5, 1) S
+        shrunk.insert(k, to_gtsam(np.diag([0.5, 0.5, 0.5, 1.0]) @ to_matrix(v.atSimilarity3(k)), "sim3"))
+    assert np.isclose(rel.error(shrunk), rel.error(v))
+    assert np.isclose(world.error(shrunk), 0.25 * world.error(v))  # the world-unit factor gains by shrinking
 
 
 def _flow_case(rng, group, offsets):

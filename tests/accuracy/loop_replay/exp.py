@@ -1,0 +1,81 @@
+"""Measuring tool (docs/results.md, "Mono loops, session 5"), not a test: run a sequence in-process with
+the map off, keep the graph's replay log, the loops and the poses before/after the batch in
+``$LOOP_REPLAY_OUT/<seq>_<mode>_<loops>_<tag>.pkl`` (default /tmp/loop_replay); replay it with
+``rexp.py PKL asis off gtloop rms relrms ...``. Usage: ``PYTHONPATH=. python exp.py synth800 --loops on --tag rep``."""
+import os
+import argparse, json, logging, pickle, sys, time
+from pathlib import Path
+import numpy as np, yaml
+from gsslam.config import load_config
+from gsslam.datasets.base import open_dataset
+from gsslam.slam.pipeline import Pipeline
+from gsslam.eval.ate import compute_ate
+from gsslam.types import Trajectory
+
+OUT = os.environ.get("LOOP_REPLAY_OUT", "/tmp/loop_replay")
+os.makedirs(OUT, exist_ok=True)
+SEQ = {
+    "synth800": ("synthetic", str(Path(__file__).with_name("synth800.yaml")), {}),
+    "fbf": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+            dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)),
+    "teddy200": ("tum", "../shared/data/rgbd_dataset_freiburg3_teddy", {}),
+}
+
+def traj(ts, poses, keys):
+    keys = [k for k in keys if k in poses]
+    return Trajectory(np.array([ts[k] for k in keys]), np.stack([poses[k] for k in keys]))
+
+def ate(gt, ts, poses):
+    res, _ = compute_ate(gt, traj(ts, poses, sorted(poses)), align="sim3")
+    return 100 * res.stats.rmse, float(res.alignment.scale)
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("seq"); ap.add_argument("--mode", default="mono"); ap.add_argument("--loops", default="on")
+    ap.add_argument("--set", action="append", default=[]); ap.add_argument("--tag", default="")
+    ap.add_argument("--max-frames", type=int, default=None)
+    a = ap.parse_args()
+    logging.basicConfig(level=logging.INFO if 0 else logging.WARNING)
+    logging.getLogger("gsslam.loop").setLevel(logging.INFO); logging.getLogger("gsslam.slam.loop_stage").setLevel(logging.INFO)
+    dsname, path, kw = SEQ[a.seq]
+    kw = dict(kw)
+    if a.mode == "mono" and dsname in ("tum", "playback"):
+        kw.setdefault("with_depth", False)
+    ds = open_dataset(dsname, path, **kw)
+    cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={'true' if a.loops=='on' else 'false'}", *a.set], mode=a.mode)
+    pipe = Pipeline(cfg, ds.intrinsics)
+    n = len(ds) if a.max_frames is None else min(len(ds), a.max_frames)
+    t0 = time.time()
+    for i in range(n):
+        pipe.process(ds[i])
+    pipe.close_chain()
+    gt = ds.ground_truth()
+    ts = pipe.timestamps
+    state = {"kf_before": pipe.keyframe_poses(), "fr_before": pipe.frame_poses()}
+    ch = pipe.chains[0]
+    state["S_before"] = [ch.graph.submap_pose(k) for k in range(ch.graph.num_submaps)]
+    from gsslam.factors import to_matrix
+    state["replay"] = [(op[0], op[1], to_matrix(op[2])) if op[0] == "value" else op for op in ch.graph.backend.replay_log()]
+    pipe.finish()
+    state["kf_after"] = pipe.keyframe_poses(); state["fr_after"] = pipe.frame_poses()
+    state["S_after"] = [ch.graph.submap_pose(k) for k in range(ch.graph.num_submaps)]
+    state["T_local_cam"] = [e.T_local_cam for e in ch.encodings]
+    state["frame_indices"] = [list(e.frame_indices) for e in ch.encodings]
+    state["ts"] = ts; state["gt"] = gt; state["loops"] = pipe.loop_stage.metrics()
+    state["chains"] = len(pipe.chains)
+    state["loopc"] = [dict(i=lc.i, m=lc.m, X_i=lc.X_i, X_m=lc.X_m, T_i_m=lc.T_i_m, thr=lc.threshold) for d in pipe.loop_stage._loops.values() for lc in d.values()]
+    state["enc_depth_med"] = [float(np.nanmedian(e.points_cam[..., 2])) for e in ch.encodings]
+    row = dict(seq=a.seq, mode=a.mode, loops=a.loops, set=a.set, tag=a.tag, chains=len(pipe.chains),
+               submaps=ch.graph.num_submaps,
+               ate_all=ate(gt, ts, state["fr_after"]), ate_kf=ate(gt, ts, state["kf_after"]),
+               ate_before=ate(gt, ts, state["fr_before"]), ate_kf_before=ate(gt, ts, state["kf_before"]),
+               lc={k: state["loops"][k] for k in ("candidates", "detected", "accepted", "rejected", "in_graph")},
+               wall=time.time() - t0)
+    print(json.dumps(row))
+    with open(f"{OUT}/results.jsonl", "a") as f:
+        f.write(json.dumps(row) + "\n")
+    name = f"{OUT}/{a.seq}_{a.mode}_{a.loops}{('_' + a.tag) if a.tag else ''}.pkl"
+    with open(name, "wb") as f:
+        pickle.dump(state, f)
+
+main()

@@ -252,7 +252,9 @@ class Backend:
         self._thresholds.apply(self._params)
         self._thresholds_grew = False
         sent = [h for h in self._index if h in self._factors]
-        log.info("relinearisation thresholds for key characters %s: iSAM2 rebuilt", sorted(self._thresholds.dims))
+        log.info(
+            "relinearisation thresholds for key characters %s: iSAM2 rebuilt", sorted(self._thresholds.dims)
+        )
         if not sent and not self._to_remove:
             self._isam = gtsam.ISAM2(self._params)
             return

@@ -66,7 +66,9 @@ class RelinearizeThresholds:
             return False
         c = chr(gtsam.Symbol(key).chr())
         name = f"{c}{gtsam.Symbol(key).index()}"
-        what = f"variable {name}" + (f" ({type_name}, dimension {dim})" if type_name else f" (dimension {dim})")
+        what = f"variable {name}" + (
+            f" ({type_name}, dimension {dim})" if type_name else f" (dimension {dim})"
+        )
         v = self.overrides.get(c)
         if v is not None and len(v) > 1 and len(v) != dim:
             raise BackendError(

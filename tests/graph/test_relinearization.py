@@ -73,16 +73,16 @@ def test_a_new_character_grows_the_map_and_the_estimate_is_kept():
     for k in range(6):
         np.testing.assert_allclose(typed.estimate(X(k)).translation(), [k, 0, 0], atol=1e-6)
         # same optimum as the scalar threshold (0.01 everywhere = the map's entries for x and l)
-        np.testing.assert_allclose(
-            typed.estimate(X(k)).matrix(), scalar.estimate(X(k)).matrix(), atol=1e-7
-        )
+        np.testing.assert_allclose(typed.estimate(X(k)).matrix(), scalar.estimate(X(k)).matrix(), atol=1e-7)
     np.testing.assert_allclose(typed.estimate(user_key("l", 2)), [2, 1, 0], atol=1e-9)
     assert typed.num_factors == scalar.num_factors == 9
 
 
 def test_without_overrides_the_scalar_threshold_is_used_and_nothing_checked():
     th = RelinearizeThresholds.from_config(
-        dataclasses.replace(GraphConfig(), relinearize_threshold_velocity=0.0, relinearize_threshold_bias=0.01)
+        dataclasses.replace(
+            GraphConfig(), relinearize_threshold_velocity=0.0, relinearize_threshold_bias=0.01
+        )
     )
     assert not th.typed  # 0 and "= relinearize_threshold" both mean: the scalar threshold
     assert th.admit(user_key("v", 0), 7) is False
@@ -101,6 +101,6 @@ def test_bench_graph_accuracy_unchanged_with_typed_thresholds():
     typed = run_one(30, 60, GraphConfig(), imu=True)  # default: v and b at 0.1
     scalar = run_one(30, 60, scalar_cfg, imu=True)
     assert typed["factors"] == scalar["factors"]
-    # measured at 30 keyframes / 60 points: see the numbers in docs/results.md "Graph update time, session 5"
+    # measured at 30 keyframes / 60 points: max error 0.0500 m both; relinearised 13.0 vs 24.7 per update
     assert abs(typed["isam2_position_error_max_m"] - scalar["isam2_position_error_max_m"]) < 0.005
     assert typed["isam2_relinearized_mean"] < scalar["isam2_relinearized_mean"]

@@ -17,6 +17,11 @@ without a value, and when iSAM2 itself fails (an indeterminate system, a factor 
 iSAM2 back to the last good state, finds the buffered factors to blame (each one whose removal makes the
 system solvable; the whole batch when no single one does), applies everything else and raises
 :class:`RejectedError` naming what it dropped and why. The graph stays usable after the error.
+
+Relinearisation thresholds per key character (:mod:`gsslam.graph.relinearization`): every new value
+is checked against the map iSAM2 gets (:meth:`Backend.add_value` refuses a wrong dimension, naming the
+key); a new character grows the map and iSAM2 is rebuilt with it before the next update. The errors
+live in :mod:`gsslam.graph.rejection` and are importable from here.
 """
 
 from __future__ import annotations

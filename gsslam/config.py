@@ -90,6 +90,9 @@ class GraphConfig:
     prior_scale_sigma: float = 1e-4
     relinearize_threshold: float = 0.01
     relinearize_skip: int = 1
+    # per key character (checked against every variable: gsslam.graph.relinearization); 0: as above
+    relinearize_threshold_velocity: float = 0.1  # IMU velocities (key character v, m/s)
+    relinearize_threshold_bias: float = 0.1  # IMU biases (key character b, m/s^2 and rad/s)
     final_batch_refinement: bool = True
 
     align_rot_sigma: float = 0.01  # rad, rigid submap alignment through the shared frame
@@ -449,6 +452,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.prior_scale_sigma": POS,
     "graph.relinearize_threshold": NONNEG,
     "graph.relinearize_skip": _ge(1),
+    "graph.relinearize_threshold_velocity": NONNEG,
+    "graph.relinearize_threshold_bias": NONNEG,
     "graph.align_rot_sigma": POS,
     "graph.align_trans_sigma": POS,
     "graph.adjacency_max_points": _ge(1),

@@ -17,72 +17,27 @@ without a value, and when iSAM2 itself fails (an indeterminate system, a factor 
 iSAM2 back to the last good state, finds the buffered factors to blame (each one whose removal makes the
 system solvable; the whole batch when no single one does), applies everything else and raises
 :class:`RejectedError` naming what it dropped and why. The graph stays usable after the error.
+
+Relinearisation thresholds per key character (:mod:`gsslam.graph.relinearization`): every new value
+is checked against the map iSAM2 gets (:meth:`Backend.add_value` refuses a wrong dimension, naming the
+key); a new character grows the map and iSAM2 is rebuilt with it before the next update. The errors
+live in :mod:`gsslam.graph.rejection` and are importable from here.
 """
 
 from __future__ import annotations
 
 import logging
 import re
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
-from gsslam.errors import GsslamError
+from gsslam.graph.rejection import BATCH_TAG, BackendError, RejectedError, Rejection, first_line
+from gsslam.graph.relinearization import RelinearizeThresholds
+
+__all__ = ["Backend", "BackendError", "RejectedError", "Rejection"]
 
 log = logging.getLogger(__name__)
-
-
-class BackendError(GsslamError):
-    """A factor or value the backend cannot use (unknown key, duplicate value, unknown handle)."""
-
-
-@dataclass(frozen=True)
-class Rejection:
-    """One factor (``handle`` set) or value (``key`` set) that :meth:`Backend.update` dropped."""
-
-    what: str  # e.g. "factor 'gps x23' (PriorFactorPose3 on x23)" or "value b3 (ConstantBias)"
-    cause: str  # e.g. "missing key x23: it has no value"
-    handle: int | None = None
-    key: int | None = None
-
-
-class RejectedError(BackendError):
-    """:meth:`Backend.update` dropped some buffered factors/values; every other change WAS applied.
-
-    The graph is usable: the next update works without further action. ``rejected`` lists what was
-    dropped (:class:`Rejection`).
-    """
-
-    def __init__(self, rejected: list[Rejection]):
-        self.rejected = list(rejected)
-        lines, seen = [], set()
-        for r in self.rejected:
-            if r.cause.endswith(_BATCH):  # one line for a rolled-back batch
-                if _BATCH not in seen:
-                    n = sum(r_.handle is not None and r_.cause.endswith(_BATCH) for r_ in self.rejected)
-                    vals = [r_.what.split()[1] for r_ in self.rejected if r_.key is not None]
-                    lines.append(
-                        f"the whole update ({n} factors, new values {','.join(vals) or 'none'}): "
-                        f"{r.cause[: -len(_BATCH)]}; no single factor of the batch is to blame"
-                    )
-                    seen.add(_BATCH)
-            elif r.key is None or not r.cause.startswith("rolled back"):
-                lines.append(f"{r.what}: {r.cause}")
-        super().__init__("rejected and rolled back " + "; ".join(lines))
-
-
-_BATCH = " [batch]"
-
-
-def _first_line(e: BaseException) -> str:
-    """The first non-empty line of an exception message (gtsam's start with a newline)."""
-    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
-    text = " ".join(lines[:2]) if lines else type(e).__name__
-    if not isinstance(e, RuntimeError):
-        text = f"{type(e).__name__}: {text}"
-    # gtsam prints the raw key integer next to the symbol name; keep the symbol only
-    return re.sub(r"\s*\d{6,}\s*\(Symbol: (\w+)\)", r" \1", text)
 
 
 def _at(values: gtsam.Values, key: int, type_name: str):
@@ -90,8 +45,16 @@ def _at(values: gtsam.Values, key: int, type_name: str):
 
 
 def _dim(values: gtsam.Values, key: int, type_name: str) -> int:
-    v = _at(values, key, type_name)
-    return int(np.size(v)) if isinstance(v, (float, int, np.ndarray)) else int(v.dim())
+    return _value_dim(_at(values, key, type_name))
+
+
+def _value_dim(v) -> int:
+    """Tangent dimension of a gtsam value (``ConstantBias`` has no ``dim()`` in the binding)."""
+    if isinstance(v, (float, int, np.ndarray)):
+        return int(np.size(v))
+    if isinstance(v, gtsam.imuBias.ConstantBias):
+        return 6
+    return int(v.dim())
 
 
 def _keys(factor) -> str:
@@ -111,8 +74,19 @@ def _type_name(value) -> str:
 class Backend:
     """Incremental smoothing (iSAM2) over any gtsam factors, plus a batch LM refinement."""
 
-    def __init__(self, params: gtsam.ISAM2Params | None = None, batch_max_iterations: int = 100):
+    def __init__(
+        self,
+        params: gtsam.ISAM2Params | None = None,
+        batch_max_iterations: int = 100,
+        thresholds: RelinearizeThresholds | None = None,
+    ):
         self._params = params if params is not None else gtsam.ISAM2Params()
+        # per-character relinearisation thresholds, checked against every new value (None: whatever
+        # ``params`` holds, unchecked)
+        self._thresholds = thresholds
+        self._thresholds_grew = False  # a new key character: iSAM2 is rebuilt before the next update
+        if thresholds is not None:
+            thresholds.apply(self._params)
         self._isam = gtsam.ISAM2(self._params)
         self._batch_max_iterations = batch_max_iterations
         self._factors: dict[int, gtsam.NonlinearFactor] = {}  # live factors by handle
@@ -133,7 +107,8 @@ class Backend:
     def from_config(cls, cfg) -> Backend:  # cfg: gsslam.config.GraphConfig
         from gsslam.graph.noise import isam_params
 
-        backend = cls(isam_params(cfg), cfg.batch_max_iterations)
+        thresholds = RelinearizeThresholds.from_config(cfg)
+        backend = cls(isam_params(cfg), cfg.batch_max_iterations, thresholds)
         backend.config = cfg
         return backend
 
@@ -201,9 +176,15 @@ class Backend:
         return handle
 
     def add_value(self, key: int, value) -> None:
-        """Buffer the initial value of a NEW variable ``key`` (any gtsam value type)."""
+        """Buffer the initial value of a NEW variable ``key`` (any gtsam value type).
+
+        With per-character relinearisation thresholds, a value whose dimension differs from its key
+        character's entry raises :class:`BackendError` (nothing is buffered).
+        """
         if self.has_value(key):
             raise BackendError(f"variable {gtsam.DefaultKeyFormatter(key)} already has a value")
+        if self._thresholds is not None:
+            self._thresholds_grew |= self._thresholds.admit(key, _value_dim(value), _type_name(value))
         self._new_values.insert(key, value)
         self._types[key] = _type_name(value)
         if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3)):
@@ -250,6 +231,8 @@ class Backend:
         ):
             return None
         rejected = self._reject_missing_keys()
+        if self._thresholds_grew:
+            self._rebuild_with_thresholds()
         try:
             result = self._send()
         except Exception as e:  # noqa: BLE001 - gtsam and user factors throw anything; we roll back
@@ -267,6 +250,28 @@ class Backend:
                 log.warning("backend rejected %s: %s", r.what, r.cause)
             raise RejectedError(rejected)
         return result
+
+    def _rebuild_with_thresholds(self) -> None:
+        """A variable brought a key character the threshold map lacked: iSAM2 copies its parameters
+        when made, so a new one takes the grown map, re-seeded with the sent factors at the estimate."""
+        self._thresholds.apply(self._params)
+        self._thresholds_grew = False
+        sent = [h for h in self._index if h in self._factors]
+        log.info(
+            "relinearisation thresholds for key characters %s: iSAM2 rebuilt", sorted(self._thresholds.dims)
+        )
+        if not sent and not self._to_remove:
+            self._isam = gtsam.ISAM2(self._params)
+            return
+        estimate = self._isam.calculateEstimate()
+        graph = gtsam.NonlinearFactorGraph()
+        for h in sent:
+            graph.add(self._factors[h])
+        self._isam = gtsam.ISAM2(self._params)
+        res = self._isam.update(graph, estimate)
+        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
+        self._to_remove = []
+        self._estimate = None
 
     def _send(self) -> gtsam.ISAM2Result:
         graph = gtsam.NonlinearFactorGraph()
@@ -351,7 +356,7 @@ class Backend:
             return None
         log.warning(
             "iSAM2 (Cholesky) failed: %s; solved with QR factorization, which the graph uses from now on",
-            _first_line(error),
+            first_line(error),
         )
         return result
 
@@ -383,7 +388,7 @@ class Backend:
 
     def _blame(self, error: Exception) -> list[Rejection]:
         """Drop the buffered culprits of a failed update (iSAM2 was rolled back)."""
-        cause = _first_line(error)
+        cause = first_line(error)
         graph = self._sent_graph
         # blame: each buffered factor whose removal alone makes the system solvable
         values = gtsam.Values(self._sent_values)
@@ -398,9 +403,9 @@ class Backend:
             out = []
         # no single culprit (or several together): the whole batch goes
         for h in list(self._pending):
-            out.append(self._drop_pending(h, cause + _BATCH))
+            out.append(self._drop_pending(h, cause + BATCH_TAG))
         for k in list(self._new_values.keys()):
-            out.append(self._drop_new_value(k, "rolled back with its batch" + _BATCH))
+            out.append(self._drop_new_value(k, "rolled back with its batch" + BATCH_TAG))
         return out
 
     def _solvable(self, sent: gtsam.NonlinearFactorGraph, values: gtsam.Values, skip: int | None) -> bool:
@@ -436,7 +441,7 @@ class Backend:
         try:
             result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
         except RuntimeError as e:  # nothing was changed: the iSAM2 state is still the last good one
-            raise BackendError(f"batch refinement failed, graph unchanged: {_first_line(e)}") from e
+            raise BackendError(f"batch refinement failed, graph unchanged: {first_line(e)}") from e
         error = float(graph.error(result))
         log.debug("batch LM: error %.6g -> %.6g", graph.error(initial), error)
         self._isam = gtsam.ISAM2(self._params)

@@ -164,8 +164,8 @@ class MapperConfig:
     registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2
     registration_max_condition: float = 1e4  # largest condition number of that information
     registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
-    registration_min_age: int = 16  # keyframes: register only against Gaussians seeded this long ago (0: all)
-    registration_min_converged: float = 0.5  # least share of the rendered weight from those Gaussians
+    feedback_min_age: int = 16  # keyframes: feedback only from Gaussians seeded this long ago (0: all; docs)
+    feedback_min_converged: float = 0.5  # least share of a view's rendered weight from those Gaussians
     num_threads: int = (
         1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
     )
@@ -517,8 +517,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.registration_min_information": NONNEG,
     "mapper.registration_max_condition": _ge(1),
     "mapper.registration_information_scale": POS,
-    "mapper.registration_min_age": _ge(0),
-    "mapper.registration_min_converged": UNIT,
+    "mapper.feedback_min_age": _ge(0),
+    "mapper.feedback_min_converged": UNIT,
     "mapper.final_max_iterations": _ge(0),
     "mapper.final_max_share": UNIT,
     "loop.skip_recent": _ge(0),

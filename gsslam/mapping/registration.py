@@ -15,28 +15,23 @@ the map having been fitted to nearby views. A registration is returned only wher
 the image (alpha coverage, photometric residual) and the information is well conditioned; a flat,
 textureless render gives none.
 
-Only *converged* Gaussians are registered against (``registration_min_age``): those seeded by a keyframe
-at least that many keyframes before the newest, i.e. out of the optimisation window for a while and
-revisited since. The young ones, seeded by the keyframes just before, carry the same drift as the frame
-being registered (the map agreeing with the odometry); the old ones are the map of a region seen long
-ago, so the registration on a revisit is a loop-like constraint. A frame whose view is mostly explained
-by young Gaussians (share of the rendered weight from converged ones < ``registration_min_converged``)
-gets no registration. See docs/mapping.md, "Registration feedback".
+Only *converged* Gaussians are registered against (:mod:`gsslam.mapping.converged`, ``feedback_min_age``):
+on a revisit the registration is a loop-like constraint against the map of the first pass. A frame whose
+view is mostly explained by young Gaussians (share of the rendered weight from converged ones <
+``feedback_min_converged``) gets no registration. See docs/mapping.md, "Registration feedback".
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from gsslam.mapping.gaussians import GaussianModel
+from gsslam.mapping.converged import converged_mask, converged_share, converged_view
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.pose import se3_delta_matrix
-from gsslam.mapping.rasterize import render as rasterize
 from gsslam.mapping.state import MapState, render
 
 _log = logging.getLogger(__name__)
@@ -57,40 +52,6 @@ class Registration:
     min_information: float  # smallest eigenvalue of the depth-normalised information
     condition: float  # its condition number
     converged: float = 1.0  # share of the rendered weight (alpha > 0.9) from converged Gaussians
-
-
-def converged_mask(state: MapState, min_age: int) -> torch.Tensor:  # -> [N] bool
-    """Gaussians seeded by a keyframe at least ``min_age`` keyframes before the newest (0: all)."""
-    model = state.model
-    if min_age <= 0:
-        return torch.ones(len(model), dtype=torch.bool, device=model.means.device)
-    old = state.order[: max(0, len(state.order) - min_age)]
-    return torch.isin(model.keyframe_id, torch.tensor(old, dtype=torch.int64, device=model.means.device))
-
-
-@torch.no_grad()
-def converged_share(state: MapState, kf: Keyframe, mask: torch.Tensor) -> tuple[float, float]:
-    """(coverage, share): the fraction of ``kf``'s pixels the whole map covers (alpha > 0.9) and the share
-    of the rendered weight there that comes from the Gaussians in ``mask`` [N] (rendered as a colour)."""
-    m = state.model
-    flag = mask.float()[:, None].expand(-1, 3).contiguous()  # [N, 3]
-    out = rasterize(
-        m.means, m.quats, m.scales, m.opacities, flag, kf.T_cam_world(state.device), state.K,
-        state.intrinsics.width, state.intrinsics.height, backend=state.backend,
-    )  # fmt: skip
-    covered = out.alpha > 0.9
-    if not bool(covered.any()):
-        return 0.0, 0.0
-    share = (out.color[..., 0][covered] / out.alpha[covered]).clamp(0, 1).mean()
-    return float(covered.float().mean()), float(share)
-
-
-def _converged_state(state: MapState, mask: torch.Tensor) -> MapState:
-    """A view of ``state`` whose model holds only the Gaussians in ``mask`` (the map is unchanged)."""
-    if bool(mask.all()):
-        return state
-    sub: GaussianModel = state.model.select(mask)
-    return dataclasses.replace(state, model=sub)
 
 
 def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor):
@@ -177,12 +138,12 @@ def gauss_newton(state: MapState, kf: Keyframe, iterations: int):
 def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | None:
     """Register ``kf`` (not part of the map) against the map; None where the map cannot tell its pose."""
     cfg = state.cfg
-    mask = converged_mask(state, cfg.registration_min_age)
-    coverage, share = converged_share(state, kf, mask)
-    if coverage < cfg.registration_min_coverage or share < cfg.registration_min_converged:
+    mask = converged_mask(state, cfg.feedback_min_age)
+    coverage, share = converged_share(state, kf.T_cam_world(state.device), mask)
+    if coverage < cfg.registration_min_coverage or share < cfg.feedback_min_converged:
         _log.debug("registration of %d: coverage %.2f, converged %.2f: too low", kf.index, coverage, share)
         return None
-    info, coverage, sigma = gauss_newton(_converged_state(state, mask), kf, iterations)
+    info, coverage, sigma = gauss_newton(converged_view(state, mask), kf, iterations)
     D = np.diag([1.0, 1.0, 1.0] + [kf.median_depth] * 3)  # translation in units of the depth
     ev = np.linalg.eigvalsh(D @ info @ D)
     cond = float(ev[-1] / max(ev[0], 1e-12))

@@ -17,12 +17,12 @@ from gsslam.factors import make_registration_factor, to_gtsam, to_matrix
 from gsslam.geometry import make_T, so3_exp
 from gsslam.mapping.keyframes import make_keyframe
 from gsslam.mapping.mapper import GaussianMapper
-from gsslam.mapping.registration import converged_mask, converged_share
+from gsslam.mapping.converged import converged_mask, converged_share
 from gsslam.types import Frame
 
-# registration_min_age=0: every Gaussian of these two-keyframe maps counts as converged
+# feedback_min_age=0: every Gaussian of these two-keyframe maps counts as converged
 CFG = MapperConfig(
-    max_side=120, iterations=20, window=4, device="cpu", lambda_depth=0.5, registration_min_age=0
+    max_side=120, iterations=20, window=4, device="cpu", lambda_depth=0.5, feedback_min_age=0
 )
 
 
@@ -112,9 +112,9 @@ def test_flat_textureless_render_gives_no_factor(teddy_frames):
 
 
 def _aged(mapper: GaussianMapper, min_age: int) -> GaussianMapper:
-    """The same map (shared tensors, nothing copied) with ``registration_min_age=min_age``."""
+    """The same map (shared tensors, nothing copied) with ``feedback_min_age=min_age``."""
     m = copy.copy(mapper)
-    m.cfg = dataclasses.replace(mapper.cfg, registration_min_age=min_age)
+    m.cfg = dataclasses.replace(mapper.cfg, feedback_min_age=min_age)
     m.map = dataclasses.replace(mapper.map, cfg=m.cfg)
     return m
 
@@ -127,12 +127,13 @@ def test_converged_share_counts_the_rendered_weight_of_old_gaussians(teddy_map, 
     kf = make_keyframe(CFG, f1, f1.T_world_cam_gt, -1, (st.intrinsics.width, st.intrinsics.height), st.device)
     old = converged_mask(st, 1)
     assert torch.equal(old, st.model.keyframe_id == f0.index) and 0 < int(old.sum()) < len(old)
-    cov_all, share_all = converged_share(st, kf, converged_mask(st, 0))
-    cov_old, share_old = converged_share(st, kf, old)
+    T = kf.T_cam_world(st.device)
+    cov_all, share_all = converged_share(st, T, converged_mask(st, 0))
+    cov_old, share_old = converged_share(st, T, old)
     assert cov_all == cov_old > 0.8 and share_all == pytest.approx(1.0, abs=1e-4)
     # measured 0.91: f2 seeds only where f0's Gaussians left f2's view unmapped, the rest is f0's
     assert 0.6 < share_old < 0.99, share_old
-    assert converged_share(st, kf, converged_mask(st, 2))[1] == 0.0
+    assert converged_share(st, T, converged_mask(st, 2))[1] == 0.0
 
 
 def test_registration_against_converged_gaussians_only(teddy_map, teddy_frames):

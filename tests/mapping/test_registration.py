@@ -17,7 +17,7 @@ from gsslam.factors import make_registration_factor, to_gtsam, to_matrix
 from gsslam.geometry import make_T, so3_exp
 from gsslam.mapping.keyframes import make_keyframe
 from gsslam.mapping.mapper import GaussianMapper
-from gsslam.mapping.converged import converged_mask, converged_share
+from gsslam.mapping.converged import converged_depth, converged_mask, converged_share
 from gsslam.types import Frame
 
 # feedback_min_age=0: every Gaussian of these two-keyframe maps counts as converged
@@ -147,3 +147,20 @@ def test_registration_against_converged_gaussians_only(teddy_map, teddy_frames):
     assert reg is not None and 0.6 < reg.converged < 0.99
     T_graph = _graph_estimate(T_bad, reg)
     assert _reprojection_px(f1, T_graph) < 0.5 * _reprojection_px(f1, T_bad)
+
+
+def test_converged_depth_is_the_old_map_s_depth_and_only_on_a_view_of_it(teddy_map, teddy_frames):
+    """Depth priors come from the converged Gaussians alone: at f1 (min_age=1: f0's Gaussians) they match
+    the sensor depth; with min_age=2 nothing is converged and nothing is sent."""
+    f1 = teddy_frames[1]
+    st = _aged(teddy_map, 1).map
+    uv, depth, share = converged_depth(st, f1.T_world_cam_gt, 200)
+    assert len(uv) == len(depth) == 200 and share > 0.6
+    sx, sy = f1.intrinsics.width / st.intrinsics.width, f1.intrinsics.height / st.intrinsics.height
+    u, v = np.rint((uv[:, 0] + 0.5) * sx - 0.5).astype(int), np.rint((uv[:, 1] + 0.5) * sy - 0.5).astype(int)
+    z = f1.depth[v, u]
+    ok = np.isfinite(z) & (z > 0)
+    ratio = depth[ok] / z[ok]
+    # measured: 181 of 200 with a sensor depth, median ratio 0.997, 83 % of them within 5 %
+    assert ok.sum() > 150 and abs(np.median(ratio) - 1) < 0.02 and np.mean(np.abs(ratio - 1) < 0.05) > 0.7
+    assert len(converged_depth(_aged(teddy_map, 2).map, f1.T_world_cam_gt, 200)[1]) == 0

@@ -39,7 +39,7 @@ def converged_share(state: MapState, T_cam_world: torch.Tensor, mask: torch.Tens
     """(coverage, share) of the view ``T_cam_world`` [4, 4]: the fraction of pixels the whole map covers
     (alpha > 0.9), and the share of the rendered weight there from the Gaussians in ``mask`` [N]."""
     m = state.model
-    if len(m) == 0:
+    if len(m) == 0 or not bool(mask.any()):  # nothing converged yet: no render needed
         return 0.0, 0.0
     flag = mask.float()[:, None].expand(-1, 3).contiguous()  # [N, 3]
     out = rasterize(

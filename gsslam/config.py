@@ -157,7 +157,7 @@ class MapperConfig:
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
     pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
-    registration_feedback: bool = False  # new keyframes registered against the map -> graph factors (docs)
+    registration_feedback: bool = True  # new keyframes registered against the converged map -> graph factors
     registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
     registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
     registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum

@@ -8,7 +8,7 @@ Per new submap (after the graph update and loop closure):
    T_local_cam``, the point map in submap units, its confidence) and the cross-submap flows that the
    pipeline computed for the graph (GaussianFlow supervision), then runs ``optimize`` on the window.
 3. Feedback (SING3R: "optimized depths/poses feed back into the forming of the next submaps"; both
-   switches are in the mapper config and are off by default, see docs/mapping.md):
+   switches are in the mapper config; registration is on by default, the depth paths off; docs/mapping.md):
    :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
    submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);
    :meth:`MapStage.depth_priors` adds depths rendered at the new keyframes' graph poses (from the

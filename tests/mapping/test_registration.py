@@ -15,15 +15,13 @@ from mapping.test_mapper import _reprojection_px
 from gsslam.config import MapperConfig
 from gsslam.factors import make_registration_factor, to_gtsam, to_matrix
 from gsslam.geometry import make_T, so3_exp
+from gsslam.mapping.converged import converged_depth, converged_mask, converged_share
 from gsslam.mapping.keyframes import make_keyframe
 from gsslam.mapping.mapper import GaussianMapper
-from gsslam.mapping.converged import converged_depth, converged_mask, converged_share
 from gsslam.types import Frame
 
 # feedback_min_age=0: every Gaussian of these two-keyframe maps counts as converged
-CFG = MapperConfig(
-    max_side=120, iterations=20, window=4, device="cpu", lambda_depth=0.5, feedback_min_age=0
-)
+CFG = MapperConfig(max_side=120, iterations=20, window=4, device="cpu", lambda_depth=0.5, feedback_min_age=0)
 
 
 @pytest.fixture(scope="module")

@@ -162,13 +162,15 @@ class MapperConfig:
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
     pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
-    registration_feedback: bool = False  # new keyframes registered against the map -> graph factors (docs)
+    registration_feedback: bool = True  # new keyframes registered against the converged map -> graph factors
     registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
     registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
     registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum
     registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2
     registration_max_condition: float = 1e4  # largest condition number of that information
     registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
+    feedback_min_age: int = 16  # keyframes: feedback only from Gaussians seeded this long ago (0: all; docs)
+    feedback_min_converged: float = 0.5  # least share of a view's rendered weight from those Gaussians
     num_threads: int = (
         1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
     )
@@ -525,6 +527,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.registration_min_information": NONNEG,
     "mapper.registration_max_condition": _ge(1),
     "mapper.registration_information_scale": POS,
+    "mapper.feedback_min_age": _ge(0),
+    "mapper.feedback_min_converged": UNIT,
     "mapper.final_max_iterations": _ge(0),
     "mapper.final_max_share": UNIT,
     "mapper.final_coarse_share": UNIT,

@@ -13,7 +13,12 @@ of renders, Huber-weighted), ``sigma`` each term's robust residual spread at the
 (``registration_information_scale``) the discount for neighbouring pixels' correlated errors and for
 the map having been fitted to nearby views. A registration is returned only where the render explains
 the image (alpha coverage, photometric residual) and the information is well conditioned; a flat,
-textureless render gives none. See docs/mapping.md, "Registration feedback".
+textureless render gives none.
+
+Only *converged* Gaussians are registered against (:mod:`gsslam.mapping.converged`, ``feedback_min_age``):
+on a revisit the registration is a loop-like constraint against the map of the first pass. A frame whose
+view is mostly explained by young Gaussians (share of the rendered weight from converged ones <
+``feedback_min_converged``) gets no registration. See docs/mapping.md, "Registration feedback".
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from gsslam.mapping.converged import converged_mask, converged_share, converged_view
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.pose import se3_delta_matrix
 from gsslam.mapping.state import MapState, render
@@ -45,6 +51,7 @@ class Registration:
     residual: float  # robust spread of the colour residual at the optimum
     min_information: float  # smallest eigenvalue of the depth-normalised information
     condition: float  # its condition number
+    converged: float = 1.0  # share of the rendered weight (alpha > 0.9) from converged Gaussians
 
 
 def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor):
@@ -131,12 +138,12 @@ def gauss_newton(state: MapState, kf: Keyframe, iterations: int):
 def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | None:
     """Register ``kf`` (not part of the map) against the map; None where the map cannot tell its pose."""
     cfg = state.cfg
-    with torch.no_grad():
-        coverage = float((render(state, kf.T_cam_world(state.device)).alpha > 0.9).float().mean())
-    if coverage < cfg.registration_min_coverage:
-        _log.debug("registration of %d: coverage %.2f too low", kf.index, coverage)
+    mask = converged_mask(state, cfg.feedback_min_age)
+    coverage, share = converged_share(state, kf.T_cam_world(state.device), mask)
+    if coverage < cfg.registration_min_coverage or share < cfg.feedback_min_converged:
+        _log.debug("registration of %d: coverage %.2f, converged %.2f: too low", kf.index, coverage, share)
         return None
-    info, coverage, sigma = gauss_newton(state, kf, iterations)
+    info, coverage, sigma = gauss_newton(converged_view(state, mask), kf, iterations)
     D = np.diag([1.0, 1.0, 1.0] + [kf.median_depth] * 3)  # translation in units of the depth
     ev = np.linalg.eigvalsh(D @ info @ D)
     cond = float(ev[-1] / max(ev[0], 1e-12))
@@ -147,9 +154,10 @@ def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | N
         and cond <= cfg.registration_max_condition
     )
     _log.debug(
-        "registration of %d: coverage %.2f sigma %.3f min info %.3g cond %.3g (%s)",
+        "registration of %d: coverage %.2f converged %.2f sigma %.3f min info %.3g cond %.3g (%s)",
         kf.index,
         coverage,
+        share,
         sigma,
         ev[0],
         cond,
@@ -161,4 +169,4 @@ def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | N
     T[:3, :3], T[:3, 3] = kf.R, kf.t
 
     T = T @ se3_delta_matrix(kf.delta.detach().cpu().double()).numpy()
-    return Registration(kf.index, T, info, coverage, sigma, float(ev[0]), cond)
+    return Registration(kf.index, T, info, coverage, sigma, float(ev[0]), cond, share)

@@ -8,14 +8,15 @@ Per new submap (after the graph update and loop closure):
    T_local_cam``, the point map in submap units, its confidence) and the cross-submap flows that the
    pipeline computed for the graph (GaussianFlow supervision), then runs ``optimize`` on the window.
 3. Feedback (SING3R: "optimized depths/poses feed back into the forming of the next submaps"; both
-   switches are in the mapper config and are off by default, see docs/mapping.md):
+   switches are in the mapper config; registration is on by default, the depth paths off; docs/mapping.md):
    :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
    submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);
-   :meth:`MapStage.depth_priors` adds depths rendered at the new keyframes' graph poses (from the map
-   of the earlier submaps, alpha > 0.99, before the keyframes add their own Gaussians) to the graph as
-   depth-prior factors (``mapper.depth_feedback``); with ``mapper.registration_feedback`` the new
-   keyframes are registered against that same map and sent as registration factors
-   (:meth:`MapStage.send_registrations`).
+   :meth:`MapStage.depth_priors` adds depths rendered at the new keyframes' graph poses (from the
+   converged Gaussians of the earlier submaps, alpha > 0.99, before the keyframes add their own
+   Gaussians: :mod:`gsslam.mapping.converged`) to the graph as depth-prior factors
+   (``mapper.depth_feedback``); with ``mapper.registration_feedback`` the new keyframes are registered
+   against that same converged map and sent as registration factors (:meth:`MapStage.send_registrations`).
+   Both fire only where the converged Gaussians explain the view: on a revisit.
 
 Submap ids are per chain in the graphs; the mapper gets one global id per ``(chain, submap)``.
 """
@@ -111,12 +112,16 @@ class MapStage:
         if self.cfg.depth_feedback and len(self.mapper.model):
             # rendered before the keyframes seed their own Gaussians: the depth is the earlier submaps'
             # evidence, not the keyframe's own point map handed back (docs/results.md, "Feedback")
+            # and only the converged Gaussians' (mapper.feedback_min_age): loop-like evidence on a revisit
+            from gsslam.mapping.converged import converged_depth
+
             for idx in new_keyframes:
                 pos = list(enc.frame_indices).index(idx)
                 T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
-                self.pending_depth[idx] = self.mapper.depth_feedback(
-                    idx, self.cfg.depth_feedback_points, T_world_cam=T, min_alpha=0.99
-                )
+                uv, depth, _ = converged_depth(self.mapper.map, T, self.cfg.depth_feedback_points)
+                fx, fy = self.mapper.factor_x, self.mapper.factor_y
+                uv = np.stack([(uv[:, 0] + 0.5) / fx - 0.5, (uv[:, 1] + 0.5) / fy - 0.5], axis=1)  # full res
+                self.pending_depth[idx] = (uv, depth)
         if self.cfg.registration_feedback:
             self.pending = self._register(chains, cid, sid, enc, by_index, new_keyframes)
         for idx in new_keyframes:

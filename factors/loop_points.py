@@ -20,9 +20,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ._lie import check_count, check_shape, fill, read_transform
-from .errors import FactorInputError
-from .points import point_residual
+from ._lie import fill, read_transform
+from .points import checked_point_pair, point_residual
 
 
 def relative_point_residual(A, B, X_a: np.ndarray, X_b: np.ndarray, w: np.ndarray, want_jac: bool = True):
@@ -45,18 +44,7 @@ def make_relative_point_factor(
     sigma: float | np.ndarray,  # scalar or [N], key_a's local units
 ) -> gtsam.CustomFactor:
     """Batched loop-point factor between two Similarity3 variables, residual in key_a's units (3N)."""
-    X_a = check_shape("X_a", X_a, (None, 3))
-    X_b = check_shape("X_b", X_b, (None, 3))
-    if X_a.shape != X_b.shape:
-        raise FactorInputError(f"X_a and X_b must have the same shape, got {X_a.shape} and {X_b.shape}")
-    check_count("relative point factor", len(X_a))
-    if key_a == key_b:
-        raise FactorInputError("a point factor needs two different variables")
-    sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (len(X_a),)).copy()
-    if not np.all(np.isfinite(sig) & (sig > 0)):
-        raise FactorInputError("sigma must be positive and finite (a scalar or one value per point)")
-    w = 1.0 / sig
-    X_a, X_b = np.ascontiguousarray(X_a), np.ascontiguousarray(X_b)
+    X_a, X_b, w = checked_point_pair("relative point factor", key_a, key_b, X_a, X_b, sigma)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         ka, kb = this.keys()

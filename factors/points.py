@@ -44,6 +44,21 @@ def point_residual(A, B, X_a: np.ndarray, X_b: np.ndarray, w: np.ndarray, group:
     return r.ravel(), JA.reshape(-1, d), JB.reshape(-1, d)
 
 
+def checked_point_pair(name: str, key_a: int, key_b: int, X_a, X_b, sigma):
+    """Validate a point factor's inputs -> (X_a, X_b contiguous [N, 3], w [N] = 1 / sigma)."""
+    X_a = check_shape("X_a", X_a, (None, 3))
+    X_b = check_shape("X_b", X_b, (None, 3))
+    if X_a.shape != X_b.shape:
+        raise FactorInputError(f"X_a and X_b must have the same shape, got {X_a.shape} and {X_b.shape}")
+    check_count(name, len(X_a))
+    if key_a == key_b:
+        raise FactorInputError("a point factor needs two different variables")
+    sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (len(X_a),)).copy()
+    if not np.all(np.isfinite(sig) & (sig > 0)):
+        raise FactorInputError("sigma must be positive and finite (a scalar or one value per point)")
+    return np.ascontiguousarray(X_a), np.ascontiguousarray(X_b), 1.0 / sig
+
+
 def make_point_factor(
     key_a: int,
     key_b: int,
@@ -54,18 +69,7 @@ def make_point_factor(
 ) -> gtsam.CustomFactor:
     """Batched point-coincidence factor (adjacency or loop points), residual dimension 3N."""
     check_group(group)
-    X_a = check_shape("X_a", X_a, (None, 3))
-    X_b = check_shape("X_b", X_b, (None, 3))
-    if X_a.shape != X_b.shape:
-        raise FactorInputError(f"X_a and X_b must have the same shape, got {X_a.shape} and {X_b.shape}")
-    check_count("point factor", len(X_a))
-    if key_a == key_b:
-        raise FactorInputError("a point factor needs two different variables")
-    sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (len(X_a),)).copy()
-    if not np.all(np.isfinite(sig) & (sig > 0)):
-        raise FactorInputError("sigma must be positive and finite (a scalar or one value per point)")
-    w = 1.0 / sig
-    X_a, X_b = np.ascontiguousarray(X_a), np.ascontiguousarray(X_b)
+    X_a, X_b, w = checked_point_pair("point factor", key_a, key_b, X_a, X_b, sigma)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         ka, kb = this.keys()
@@ -85,4 +89,4 @@ def make_point_factor(
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3 * len(X_a)), [key_a, key_b], error)
 
 
-__all__ = ["make_point_factor", "point_residual"]
+__all__ = ["checked_point_pair", "make_point_factor", "point_residual"]

@@ -139,7 +139,7 @@ FORBIDDEN = {
     "run": {"cli", "bench", "__main__"},
     "cli": {"slam", "frontend", "graph", "mapping", "loop", "datasets"},  # the CLI enters through run/
     **{base: {"slam", "run", "cli", "bench", "frontend", "graph", "mapping", "loop", "datasets", "viz"}
-       for base in ("config", "types", "geometry", "imaging", "errors")},
+       for base in ("config", "config_schema", "config_ranges", "types", "geometry", "imaging", "errors")},
 }  # fmt: skip
 PURE = {
     "eval": {"eval", "types", "geometry", "imaging", "errors"},

@@ -10,6 +10,9 @@ from dataclasses import dataclass, field
 
 from gsslam.errors import GsslamError
 
+# fmt: off
+# (one line per field, comment included: docs/make_config_doc.py reads them so)
+
 
 class ConfigError(GsslamError):
     """A config file or override names an unknown key or a value of the wrong type."""

@@ -1,4 +1,5 @@
-"""Write docs/config.md from gsslam/config.py: every key, its default, its valid range and its comment.
+"""Write docs/config.md from gsslam/config_schema.py (the tree) and gsslam/config_ranges.py: every key,
+its default, its valid range and its comment.
 
 Run ``python docs/make_config_doc.py`` after changing the config; ``tests/test_docs.py`` fails when
 docs/config.md is out of date.
@@ -12,6 +13,7 @@ import re
 from pathlib import Path
 
 from gsslam import config as config_module
+from gsslam import config_ranges
 from gsslam.config import RANGES, Config, Range
 
 HEADER = """# Configuration
@@ -54,7 +56,7 @@ def _comments(cls: type) -> dict[str, str]:
 def _valid(key: str) -> str:
     rule = RANGES.get(key)
     if isinstance(rule, Range):
-        return rule.describe(integer=isinstance(dict(config_module._leaves(Config()))[key], int))
+        return rule.describe(integer=isinstance(dict(config_ranges._leaves(Config()))[key], int))
     if isinstance(rule, tuple):
         return " \\| ".join(f"`{c!r}`" for c in rule)
     return ""

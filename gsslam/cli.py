@@ -28,6 +28,8 @@ from typing import Annotated, Optional
 
 import typer
 
+from gsslam.cli_batch import batch_cmd
+from gsslam.cli_bench import bench_app
 from gsslam.errors import GsslamError
 
 app = typer.Typer(
@@ -37,7 +39,6 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-bench_app = typer.Typer(help="Benchmarks that print timing numbers (not tests).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 
 _log = logging.getLogger("gsslam")
@@ -307,205 +308,7 @@ def render_cmd(
     typer.echo(f"wrote {n} renders to {out}")
 
 
-def _int_list(text: str, option: str) -> list[int]:
-    """``"50,200"`` -> ``[50, 200]``; anything else is a usage error naming the option."""
-    try:
-        values = [int(s) for s in text.split(",")]
-    except ValueError:
-        raise typer.BadParameter(f"expected comma-separated integers like 50,200, got {text!r}",
-                                 param_hint=option) from None  # fmt: skip
-    if any(v <= 0 for v in values):
-        raise typer.BadParameter(f"every value must be positive, got {text!r}", param_hint=option)
-    return values
-
-
-def _run_batch(
-    manifest: str, out: Optional[Path], jobs: int, address: Optional[str], max_frames: Optional[int],
-    data_root: Optional[list[Path]],
-) -> None:  # fmt: skip
-    from gsslam.run.batch import BatchOptions, run_batch
-    from gsslam.run.manifest import load_manifest
-
-    m = load_manifest(manifest)
-    opts = BatchOptions(
-        out=out or Path("runs") / "batch" / m.name, jobs=jobs, address=address, max_frames=max_frames,
-        data_roots=tuple(data_root or ()),
-    )  # fmt: skip
-
-    def done(rec: dict) -> None:
-        err = f": {rec.get('error')}" if rec.get("error") else ""
-        typer.echo(f"  {rec.get('run_id')}: {rec.get('status')}{err}", err=True)
-
-    result = run_batch(m, opts, on_done=done)
-    typer.echo((opts.out / "results.md").read_text())
-    typer.echo(
-        f"{len(result.executed)} run(s) executed, {len(result.reused)} reused; "
-        f"tables in {opts.out}/results.{{md,csv,json}}, plot {opts.out}/ate.png"
-    )
-
-
-@app.command("batch")
-def batch_cmd(
-    manifest: Annotated[
-        Optional[str],
-        typer.Argument(help="Manifest YAML, or a built-in suite: quick, standard, long, feedback."),
-    ] = None,
-    jobs: Annotated[
-        int, typer.Option(help="Runs at once (> 1 runs on a local Ray; needs gsslam\\[batch]).")
-    ] = 1,
-    address: Annotated[
-        Optional[str],
-        typer.Option(help="Ray cluster, e.g. ray://HOST:10001 (out and data on shared storage)."),
-    ] = None,
-    out: Annotated[
-        Optional[Path], typer.Option(help="Batch folder (default runs/batch/<manifest name>).")
-    ] = None,
-    max_frames: Annotated[Optional[int], typer.Option(help="Cap every sequence at N frames.")] = None,
-    data_root: Annotated[
-        Optional[list[Path]], typer.Option(help="Extra folder to find relative data paths in (repeatable).")
-    ] = None,
-    compare: Annotated[
-        Optional[tuple[Path, Path]], typer.Option(help="Print B - A per sequence for two batch folders A B.")
-    ] = None,
-) -> None:
-    """Run every sequence x configuration of a manifest; resume; write one table (md, csv, json) + plot.
-
-    Each run gets its own folder OUT/runs/<sequence>__<config>; runs already complete are skipped, so
-    re-running a batch finishes what is missing. A failed run is a row with its error. Data paths are
-    relative to --data-root, $GSSLAM_DATA, data/ and ../shared/data. See docs/evaluation.md.
-    """
-    if compare is not None:
-        from gsslam.run.batch import read_rows
-        from gsslam.run.results import compare_markdown, compare_rows
-
-        typer.echo(compare_markdown(compare_rows(read_rows(compare[0]), read_rows(compare[1]))))
-        return
-    if manifest is None:
-        raise typer.BadParameter("give a manifest (or a suite name), or --compare A B", param_hint="MANIFEST")
-    _run_batch(manifest, out, jobs, address, max_frames, data_root)
-
-
-@bench_app.command("accuracy")
-def bench_accuracy(
-    suite: Annotated[
-        str, typer.Option(help="Built-in suite: quick | standard | long | tracking | feedback.")
-    ] = "quick",
-    jobs: Annotated[int, typer.Option(help="Runs at once (> 1 needs gsslam\\[batch]).")] = 1,
-    address: Annotated[Optional[str], typer.Option(help="Ray cluster address.")] = None,
-    out: Annotated[Optional[Path], typer.Option(help="Batch folder (default runs/batch/<suite>).")] = None,
-    max_frames: Annotated[Optional[int], typer.Option(help="Cap every sequence at N frames.")] = None,
-    data_root: Annotated[
-        Optional[list[Path]], typer.Option(help="Extra folder to find the suite's data in (repeatable).")
-    ] = None,
-) -> None:
-    """Accuracy table of a built-in suite: `gsslam batch SUITE` (see docs/evaluation.md)."""
-    from gsslam.run.manifest import suite_path
-
-    _run_batch(str(suite_path(suite)), out, jobs, address, max_frames, data_root)
-
-
-def _bench(name: str, fn: str = "run", **kwargs) -> None:
-    import importlib
-
-    mod = importlib.import_module(f"gsslam.bench.{name}")
-    result = getattr(mod, fn)(**kwargs)
-    typer.echo(json.dumps(result, indent=2))
-
-
-@bench_app.command("graph")
-def bench_graph(
-    sizes: Annotated[str, typer.Option(help="Comma-separated keyframe counts.")] = "50,200,800",
-    points: Annotated[int, typer.Option(help="Flow correspondences per keyframe pair.")] = 1000,
-    imu: Annotated[bool, typer.Option(help="Add CombinedImuFactors (synthesized 200 Hz IMU).")] = False,
-) -> None:
-    """iSAM2 update time per keyframe and batch LM time on a synthetic chain."""
-    _bench("graph", sizes=_int_list(sizes, "--sizes"), points=points, imu=imu)
-
-
-@bench_app.command("raster")
-def bench_raster(
-    gaussians: Annotated[int, typer.Option(help="Number of Gaussians.")] = 20000,
-    width: Annotated[int, typer.Option()] = 160,
-    height: Annotated[int, typer.Option()] = 120,
-    repeats: Annotated[int, typer.Option()] = 10,
-) -> None:
-    """Forward+backward time of the rasterizer (CPU, and CUDA when present)."""
-    _bench("raster", gaussians=gaussians, width=width, height=height, repeats=repeats)
-
-
-@bench_app.command("pipeline")
-def bench_pipeline(
-    path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,
-    max_frames: Annotated[int, typer.Option()] = 60,
-    mode: Annotated[str, typer.Option()] = "rgbd",
-    lengths: Annotated[
-        Optional[str],
-        typer.Option(
-            help="Comma-separated lengths, e.g. 200,500,1000: whole runs (map and loops on) of the "
-            "sequence played by --pattern; per-stage ms per frame and memory."
-        ),
-    ] = None,
-    pattern: Annotated[str, typer.Option(help="Playback pattern for --lengths (f forward, b back).")] = (
-        "fbfbfb"
-    ),
-    map_on: Annotated[
-        bool, typer.Option("--map/--no-map", help="With --lengths: mapper and loops on.")
-    ] = True,
-    plot: Annotated[Optional[Path], typer.Option(help="With --lengths: PNG of memory against frame.")] = None,
-    set_: Annotated[
-        Optional[list[str]], typer.Option("--set", help="With --lengths: config override for every run.")
-    ] = None,
-) -> None:
-    """Tracking + graph FPS without the mapper; with --lengths, the whole run's cost by stage and length."""
-    if lengths:
-        _bench("pipeline", fn="run_lengths", path=path, mode=mode, pattern=pattern, map_on=map_on, plot=plot,
-               lengths=tuple(int(x) for x in lengths.split(",")), overrides=list(set_ or []))  # fmt: skip
-        return
-    _bench("pipeline", path=path, max_frames=max_frames, mode=mode)
-
-
-@bench_app.command("map-cost")
-def bench_map_cost(
-    path: Annotated[Optional[Path], typer.Argument(help="Sequence folder (default: bundled 60).")] = None,
-    dataset: Annotated[str, typer.Option()] = "tum",
-    mode: Annotated[str, typer.Option()] = "rgbd",
-    sides: Annotated[str, typer.Option(help="Comma-separated mapper.max_side values; full = input size.")] = (
-        "160,240,320"
-    ),
-    max_frames: Annotated[Optional[int], typer.Option(min=1)] = None,
-    set_: Annotated[Optional[list[str]], typer.Option("--set", help="Config override for every run.")] = None,
-) -> None:
-    """Whole runs: map off, then one per mapper resolution; CPU ratio to map off and native PSNR."""
-    full = [t.strip() == "full" for t in sides.split(",")]
-    values = _int_list(",".join("1" if f else t for f, t in zip(full, sides.split(","))), "--sides")
-    sides_ = tuple("full" if f else v for f, v in zip(full, values))
-    _bench("map_cost", path=path, dataset=dataset, mode=mode, sides=sides_,
-           max_frames=max_frames, overrides=list(set_ or []))  # fmt: skip
-
-
-@bench_app.command("mapper")
-def bench_mapper(
-    path: Annotated[Optional[Path], typer.Argument(help="TUM-layout sequence (default: bundled).")] = None,
-    max_frames: Annotated[int, typer.Option()] = 60,
-    kf_every: Annotated[int, typer.Option(help="Keyframe every N frames (ground-truth poses).")] = 10,
-    iterations: Annotated[int, typer.Option(help="Optimisation steps per keyframe.")] = 30,
-    sides: Annotated[
-        str, typer.Option(help="Comma-separated mapper resolutions (max side, px).")
-    ] = "120,160",
-) -> None:
-    """Mapper alone on ground-truth poses: PSNR, map size, time per keyframe for each resolution."""
-    _bench(
-        "mapper", path=path, max_frames=max_frames, kf_every=kf_every, iterations=iterations,
-        sides=tuple(_int_list(sides, "--sides")),
-    )  # fmt: skip
-
-
-@bench_app.command("loop")
-def bench_loop(
-    sizes: Annotated[str, typer.Option(help="Comma-separated submap counts.")] = "10,100,500",
-) -> None:
-    """Loop-detection time per submap as the map grows."""
-    _bench("loop", sizes=_int_list(sizes, "--sizes"))
+app.command("batch")(batch_cmd)
 
 
 EXIT_OK = 0

@@ -12,254 +12,48 @@ range raises :class:`ConfigError` naming the key, the value, where it was set an
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from gsslam.errors import GsslamError
+from gsslam.config_ranges import RANGES, Range, validate_config
+from gsslam.config_schema import (
+    Config,
+    ConfigError,
+    EncoderConfig,
+    FlowConfig,
+    GraphConfig,
+    ImuConfig,
+    KeyframeConfig,
+    LoopConfig,
+    MapperConfig,
+    PipelineConfig,
+    RunConfig,
+)
 
-
-class ConfigError(GsslamError):
-    """A config file or override names an unknown key or a value of the wrong type."""
-
-
-@dataclass(frozen=True)
-class FlowConfig:
-    method: str = "dis"  # "dis" | "farneback"
-    dis_preset: str = (
-        "ultrafast"  # "ultrafast" | "fast" | "medium" (ultrafast: ~3x faster, see docs/results.md)
-    )
-    dis_finest_scale: int = (
-        0  # DIS pyramid level of the output (0: the downscaled image itself; -1: preset's)
-    )
-    max_side: int = 320  # flow is computed on images downscaled so that max(H, W) <= this
-    fb_threshold_px: float = 2.0  # forward-backward consistency threshold, in full-resolution pixels
-
-
-@dataclass(frozen=True)
-class KeyframeConfig:
-    min_flow_px: float = 12.0  # median flow (at full resolution) that makes a new keyframe
-    max_gap: int = 10  # at most this many frames between keyframes
-
-
-@dataclass(frozen=True)
-class EncoderConfig:
-    submap_size: int = 6  # K: keyframes per submap after the shared one
-    max_points_per_frame: int = 3000  # correspondences / points sampled per frame
-    min_parallax_deg: float = 1.0  # below this, mono triangulation is not trusted
-    ransac_threshold_px: float = 1.0
-    min_depth: float = 0.1
-    max_depth: float = 10.0
-    pointmap_max_side: int = 320  # point maps / local estimation at max(H, W) <= this (TUM -> 320x240)
-    min_inliers: int = 30  # PnP / essential-matrix inliers below this: the estimate is not trusted
-    rgbd_odometry: bool = (
-        False  # also run open3d hybrid RGB-D odometry (measured worse on TUM teddy, see docs)
-    )
-    odometry_depth_diff_max: float = 0.07  # metres; open3d odometry correspondence gate
-    rgbd_icp: bool = False  # RGB-D: always refine PnP poses by dense point-to-plane ICP on depth (frontend/icp.py)
-    rgbd_icp_auto: bool = True  # RGB-D: use ICP once PnP and ICP rotations disagree (colour not calibrated to depth)
-    rgbd_icp_auto_min_ratio: float = 0.96  # PnP / ICP rotation ratio below this: colour and depth disagree
-    rgbd_icp_auto_max_ratio: float = 1.08  # above this (ICP itself turns ~3 % short on TUM teddy: 1.02-1.05)
-    rgbd_icp_direct: bool = True  # and register each keyframe directly to the submap's frame 0 by ICP
-    colour_focal_auto: bool = True  # RGB-D: depth-to-colour registration from the first frames (depth_registration.py)
-    colour_focal_frames: int = 40  # frames read for that estimate
-    colour_focal_min_dev: float = 0.02  # correct intrinsics + register depth only when |ratio - 1| exceeds this
-    colour_focal_min_baseline_m: float = 0.01  # ... or |depth-colour baseline| exceeds this (m)
-    min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
-    mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
-
-
-@dataclass(frozen=True)
-class GraphConfig:
-    flow_sigma_px: float = 1.0
-    flow_inlier_prior: float = 0.9  # inlier probability of the robust flow likelihood
-    flow_outlier_range_px: float = 50.0  # width of the uniform outlier density
-    scale_sigma: float = 0.05  # std of the log-scale drift factor
-    adjacency_sigma_m: float = (
-        0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
-    )
-    flow_effective_points: float = 10.0  # >0: a flow factor weighs as this many independent matches (0: per match)
-    loop_sigma_m: float = 0.05
-    depth_prior_sigma: float = 0.05  # relative (inverse-depth) std of mapper depth priors
-    prior_rot_sigma: float = 1e-4
-    prior_trans_sigma: float = 1e-4
-    prior_scale_sigma: float = 1e-4
-    relinearize_threshold: float = 0.01
-    relinearize_skip: int = 1
-    # per key character (checked against every variable: gsslam.graph.relinearization); 0: as above
-    relinearize_threshold_velocity: float = 0.1  # IMU velocities (key character v, m/s)
-    relinearize_threshold_bias: float = 0.1  # IMU biases (key character b, m/s^2 and rad/s)
-    final_batch_refinement: bool = True
-
-    align_rot_sigma: float = 0.01  # rad, rigid submap alignment through the shared frame
-    align_trans_sigma: float = 0.02  # previous submap's units
-    adjacency_max_points: int = 200  # shared-frame points per adjacency factor
-    flow_max_points: int = 1000  # correspondences kept per flow factor (evenly subsampled)
-    wildfire_threshold: float = 0.001  # iSAM2 Gauss-Newton wildfire threshold
-    batch_max_iterations: int = 100  # Levenberg-Marquardt iterations of refine_batch
-
-
-@dataclass(frozen=True)
-class MapperConfig:
-    enabled: bool = True
-    device: str = "auto"  # "auto" | "cpu" | "cuda"
-    rasterizer: str = "auto"  # "auto" | "c" | "torch" | "gsplat" (docs/rasterizer.md); c: fail if not built
-    max_side: int = 160  # mapper resolution: images downscaled so max(H, W) <= this
-    iterations: int = 30  # optimisation steps per map update (60 before issue #17: docs/results.md)
-    window: int = 8  # keyframes in the sliding window
-    lambda_ssim: float = 0.2
-    lambda_depth: float = 5.0  # inverse-depth L1 (lambda_D, SING3R)
-    lambda_depth_normal: float = 0.05  # lambda_DN
-    lambda_scale: float = 10.0  # lambda_S
-    lambda_flow: float = 1.0
-    lambda_pose_depth: float = 10.0  # intra-submap pose refinement, scale-invariant depth term
-    pose_refinement: bool = (
-        False  # keyframe pose refinement against the map; off: the graph discards it (docs)
-    )
-    unmapped_alpha: float = 0.5  # pixels with rendered alpha below this are "unmapped"
-    max_gaussians: int = 50000
-    depth_feedback: bool = False  # send rendered depths back to the graph (see docs)
-    depth_feedback_points: int = 500  # rendered depths per new keyframe sent to the graph as depth priors
-    shared_depth_feedback: bool = (
-        False  # rendered depth of the shared keyframe seeds the next submap's encoding
-    )
-    lr_means: float = 1e-3
-    lr_colors: float = 2.5e-2
-    lr_opacity: float = 5e-2
-    lr_scales: float = 5e-3
-    lr_quats: float = 1e-3
-    lr_pose: float = 1e-3  # Adam step of the keyframe se(3) pose deltas (rad, world units)
-    pose_iterations: int = 20  # pose-only refinement of each new keyframe against the frozen map
-    lr_pose_init: float = 2e-3  # Adam step of that pose-only refinement
-    init_stride: int = 2  # new Gaussians from every init_stride-th pixel (mapper resolution)
-    init_opacity: float = 0.7
-    min_confidence: float = 0.1  # point-map pixels below this confidence seed no Gaussians
-    flow_sigma_px: float = 1.0  # robust flow likelihood, at mapper resolution
-    flow_inlier_prior: float = 0.9
-    flow_outlier_range_px: float = 20.0
-    densify_error: float = 0.5  # mean normalized error that triggers clone/split (see docs/mapping.md)
-    prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
-    min_opacity: float = 0.05  # Gaussians below this opacity are pruned
-    revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
-    final_iterations_per_keyframe: int = 8  # finalize(): this x keyframes steps at the end (32 before #17)
-    final_max_iterations: int = 2000  # finalize(): step cap (0: none); when it binds, worst keyframes first
-    final_max_share: float = 0.0  # finalize(): at most this share of the run (0: off; timing-dependent)
-    final_coarse_share: float = 0.5  # finalize(): its first share of steps at half resolution (#17; docs)
-    final_lr_scale: float = 3.0  # finalize(): learning rates start at this x the lr_* above, decay to 10 %
-    final_densify_rounds: int = (
-        0  # finalize(): densify (error-based clone/split) this many times, evenly spaced
-    )
-    final_lambda_flow: float = 0.0  # finalize(): flow loss weight of the global pass (docs/mapping.md)
-    final_pose_iterations: int = 0  # final joint pose+map refinement after finalize() (0: off; docs)
-    final_lr_pose: float = 5e-4  # its Adam step of the keyframe se(3) deltas (decays to 10 %)
-    final_pose_prior: float = 0.1  # its lambda_pose_prior (anchor to the graph poses)
-    pose_window: int = 2  # newest keyframes of the window whose poses are refined jointly with the map
-    lambda_pose_prior: float = 1.0  # anchors pose deltas to the given (graph) poses
-    pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
-    pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
-    pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
-    registration_feedback: bool = True  # new keyframes registered against the converged map -> graph factors
-    registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
-    registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
-    registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum
-    registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2
-    registration_max_condition: float = 1e4  # largest condition number of that information
-    registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
-    feedback_min_age: int = 16  # keyframes: feedback only from Gaussians seeded this long ago (0: all; docs)
-    feedback_min_converged: float = 0.5  # least share of a view's rendered weight from those Gaussians
-    num_threads: int = (
-        1  # torch CPU threads while the mapper works (0: leave torch's setting); docs/mapping.md
-    )
-    depth_confidence_weight: bool = False  # inverse-depth residuals x point-map confidence
-    depth_scale_free: bool = False  # inverse-depth term x the keyframe's median depth (unit-free)
-
-
-@dataclass(frozen=True)
-class LoopConfig:
-    enabled: bool = True
-    skip_recent: int = 2  # submaps right before the current one are never loop candidates
-    min_overlap: float = 0.3  # reprojection overlap ratio
-    min_score: float = 0.5  # 0.7 * point overlap + 0.3 * appearance overlap
-    min_inliers: int = 30
-    inlier_threshold_m: float = 0.05  # RGB-D: 3D-3D RANSAC inlier distance (metres)
-    max_candidates: int = 3
-    inlier_threshold_rel: float = 0.02  # mono: inlier distance as a fraction of the median scene depth
-    min_inlier_ratio: float = 0.25  # RANSAC inliers / matches needed to accept a loop
-    ransac_iterations: int = 300
-    depth_tolerance_rel: float = 0.2  # reprojected depth must agree with the view's depth within this
-    points_per_submap: int = 600  # subsampled points kept per submap for reprojection overlap
-    orb_features: int = 400  # ORB keypoints per keyframe kept for verification
-    max_reprojection_checks: int = 8  # candidates (by appearance) that get the reprojection test
-    verify_view_pairs: int = 3  # best co-visible view pairs matched per candidate
-    max_drift_ratio: float = 0.2  # loop vs current estimate: disagreement / path length between submaps
-    max_rot_discrepancy_deg: float = 30.0  # loop vs current estimate, before and after optimisation
-    max_residual_factor: float = 3.0  # after optimisation: loop residual RMS / inlier threshold
-    rejoin_min_inliers: int = 12  # mono chains re-joined: inliers per submap pair and of the pooled Sim(3)
-    rejoin_min_inlier_ratio: float = 0.08  # mono chains re-joined: inliers / matches per submap pair
-    rejoin_min_fitness: float = 0.3  # mono chains re-joined: new points on the earlier surface after ICP
-    mono_sigma_from_residual: bool = True  # mono: loop residual in submap units, sigma = the loop's inlier RMS (else graph.loop_sigma_m, world units)
-    mono_sigma_min_rel: float = 0.25  # mono: floor of that sigma, as a fraction of the loop's inlier distance
-
-
-@dataclass(frozen=True)
-class PipelineConfig:
-    track_points: int = 600  # flow matches per frame for tracking / PnP against the keyframe
-    min_photo_consistency: float = 0.5  # fraction of matches whose warped grey value agrees
-    min_pnp_inliers: int = 30
-    min_pnp_inlier_ratio: float = 0.25
-    pnp_threshold_px: float = 2.0
-    blank_std: float = 0.01  # a frame whose intensity std is below this is blank (skipped)
-    max_lost_frames: int = 2  # consecutive tracking failures that start a new submap chain
-    cross_flow_back: int = 3  # each new keyframe gets flow to keyframes this far back in the previous submap
-    flow_points: int = 1000  # correspondences per cross-submap keyframe pair
-    max_time_gap_s: float = 0.5  # a longer gap between frames is an event; mono starts a new chain there
-    pose_outlier_max_dev_m: float = 0.02  # non-keyframe this far (+ half its keyframes' gap) off their path: interpolated (0: off)
-    pose_outlier_max_dev_deg: float = 3.0  # the same for the rotation (+ half the keyframes' rotation)
-    track_icp: bool = False  # RGB-D: refine each tracked frame's PnP pose by ICP against its keyframe's depth
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    checkpoint_every: int = 5  # submaps between checkpoints (docs/run_folders.md); 0: none, not on signals
-
-
-@dataclass(frozen=True)
-class ImuConfig:
-    """Preintegrated IMU factors between keyframes (gsslam.slam.imu_stage); noise from EuRoC imu0/sensor.yaml."""
-
-    enabled: bool = False  # --imu: CombinedImuFactor between consecutive keyframes (dataset must give IMU)
-    gyro_noise_density: float = 1.6968e-4  # rad/s/sqrt(Hz), EuRoC imu0 gyroscope_noise_density
-    gyro_random_walk: float = 1.9393e-5  # rad/s^2/sqrt(Hz), EuRoC imu0 gyroscope_random_walk
-    accel_noise_density: float = 2.0e-3  # m/s^2/sqrt(Hz), EuRoC imu0 accelerometer_noise_density
-    accel_random_walk: float = 3.0e-3  # m/s^3/sqrt(Hz), EuRoC imu0 accelerometer_random_walk
-    gravity: float = 9.81  # m/s^2, magnitude; the graph world is z-up once the IMU is initialised
-    static_window_s: float = 1.0  # IMU seconds before the first keyframe used for the static-start test
-    static_max_accel_std: float = 0.15  # m/s^2: std of the window's 0.1 s accel means below this = static start (EuRoC V1_01 rest: <= 0.10; handheld teddy: >= 0.3)
-    tie_rot_sigma: float = 0.005  # rad: keyframe body pose variable vs its submap's pose of the keyframe
-    tie_trans_sigma: float = 0.005  # m at the submap's scale when the tie is made (tie in submap units)
-    gravity_sigma: float = 0.02  # rad: prior on the world's roll/pitch after initialisation (IMU refines)
-    accel_bias_sigma: float = 0.1  # m/s^2: prior on the first keyframe's accelerometer bias
-    gyro_bias_sigma: float = 0.01  # rad/s: prior on the first keyframe's gyroscope bias
-    min_init_keyframes: int = 4  # keyframes with IMU between them before the visual-inertial initialisation
-
-
-@dataclass(frozen=True)
-class Config:
-    mode: str = "mono"  # "mono" | "rgbd"
-    flow: FlowConfig = field(default_factory=FlowConfig)
-    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
-    encoder: EncoderConfig = field(default_factory=EncoderConfig)
-    graph: GraphConfig = field(default_factory=GraphConfig)
-    mapper: MapperConfig = field(default_factory=MapperConfig)
-    loop: LoopConfig = field(default_factory=LoopConfig)
-    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    imu: ImuConfig = field(default_factory=ImuConfig)
-    seed: int = 0
+__all__ = [
+    "RANGES",
+    "Config",
+    "ConfigError",
+    "EncoderConfig",
+    "FlowConfig",
+    "GraphConfig",
+    "ImuConfig",
+    "KeyframeConfig",
+    "LoopConfig",
+    "MapperConfig",
+    "PipelineConfig",
+    "Range",
+    "RunConfig",
+    "config_to_dict",
+    "load_config",
+    "parse_override",
+    "read_config_file",
+    "save_config",
+    "validate_config",
+]
 
 
 def _coerce(value: Any, typ: Any, key: str) -> Any:
@@ -374,230 +168,6 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
 
 
 # ------------------------------------------------------------------------------------------- ranges
-
-
-@dataclass(frozen=True)
-class Range:
-    """Valid values of one numeric key: ``lo <= v <= hi`` (``<`` where open); None: unbounded."""
-
-    lo: float | None = None
-    hi: float | None = None
-    lo_open: bool = False
-    hi_open: bool = False
-
-    def ok(self, v: float) -> bool:
-        if not math.isfinite(v):
-            return False
-        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
-            return False
-        return not (self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi))
-
-    def describe(self, integer: bool = False) -> str:
-        def num(x: float) -> str:
-            return str(int(x)) if integer else f"{x:g}"
-
-        parts = []
-        if self.lo is not None:
-            parts.append(f"{'>' if self.lo_open else '>='} {num(self.lo)}")
-        if self.hi is not None:
-            parts.append(f"{'<' if self.hi_open else '<='} {num(self.hi)}")
-        kind = "an integer" if integer else "a finite number"
-        return f"{kind} " + " and ".join(parts) if parts else kind
-
-
-POS = Range(0.0, lo_open=True)  # > 0
-NONNEG = Range(0.0)  # >= 0
-UNIT = Range(0.0, 1.0)  # [0, 1]
-PROB = Range(0.0, 1.0, lo_open=True)  # (0, 1]
-
-
-def _ge(n: int) -> Range:
-    return Range(float(n))
-
-
-# Every numeric key has a range; string keys with a fixed vocabulary list their choices. A new config
-# key needs an entry here (tests/test_config.py checks that none is missing).
-RANGES: dict[str, Range | tuple[str, ...]] = {
-    "mode": ("mono", "rgbd"),
-    "seed": Range(0, 2**32 - 1),
-    "flow.dis_preset": ("ultrafast", "fast", "medium"),
-    "flow.dis_finest_scale": _ge(-1),
-    "flow.max_side": _ge(16),
-    "flow.fb_threshold_px": POS,
-    "keyframes.min_flow_px": NONNEG,
-    "keyframes.max_gap": _ge(1),
-    "encoder.submap_size": _ge(1),
-    "encoder.max_points_per_frame": _ge(8),
-    "encoder.min_parallax_deg": Range(0.0, 90.0, hi_open=True),
-    "encoder.ransac_threshold_px": POS,
-    "encoder.min_depth": NONNEG,
-    "encoder.max_depth": POS,
-    "encoder.pointmap_max_side": _ge(16),
-    "encoder.min_inliers": _ge(5),
-    "encoder.odometry_depth_diff_max": POS,
-    "encoder.min_texture_gradient": NONNEG,
-    "encoder.mono_dis_preset": ("", "ultrafast", "fast", "medium"),
-    "encoder.rgbd_icp_auto_min_ratio": POS,
-    "encoder.rgbd_icp_auto_max_ratio": POS,
-    "encoder.colour_focal_frames": _ge(8),
-    "encoder.colour_focal_min_dev": Range(0.0, 0.5),
-    "encoder.colour_focal_min_baseline_m": Range(0.0, 0.2),
-    "graph.flow_sigma_px": POS,
-    "graph.flow_inlier_prior": PROB,
-    "graph.flow_outlier_range_px": POS,
-    "graph.scale_sigma": POS,
-    "graph.adjacency_sigma_m": POS,
-    "graph.loop_sigma_m": POS,
-    "graph.depth_prior_sigma": POS,
-    "graph.prior_rot_sigma": POS,
-    "graph.prior_trans_sigma": POS,
-    "graph.prior_scale_sigma": POS,
-    "graph.relinearize_threshold": NONNEG,
-    "graph.relinearize_skip": _ge(1),
-    "graph.relinearize_threshold_velocity": NONNEG,
-    "graph.relinearize_threshold_bias": NONNEG,
-    "graph.align_rot_sigma": POS,
-    "graph.align_trans_sigma": POS,
-    "graph.adjacency_max_points": _ge(1),
-    "graph.flow_max_points": _ge(1),
-    "graph.wildfire_threshold": NONNEG,
-    "graph.batch_max_iterations": _ge(0),
-    "graph.flow_effective_points": NONNEG,
-    "imu.gyro_noise_density": POS,
-    "imu.gyro_random_walk": POS,
-    "imu.accel_noise_density": POS,
-    "imu.accel_random_walk": POS,
-    "imu.gravity": POS,
-    "imu.static_window_s": POS,
-    "imu.static_max_accel_std": POS,
-    "imu.tie_rot_sigma": POS,
-    "imu.tie_trans_sigma": POS,
-    "imu.gravity_sigma": POS,
-    "imu.accel_bias_sigma": POS,
-    "imu.gyro_bias_sigma": POS,
-    "imu.min_init_keyframes": _ge(3),
-    "mapper.device": ("auto", "cpu", "cuda"),
-    "mapper.rasterizer": ("auto", "c", "torch", "gsplat", "fast"),  # gsslam.mapping.rasterize.BACKENDS
-    "mapper.max_side": _ge(16),
-    "mapper.iterations": _ge(0),
-    "mapper.window": _ge(1),
-    "mapper.lambda_ssim": UNIT,
-    "mapper.lambda_depth": NONNEG,
-    "mapper.lambda_depth_normal": NONNEG,
-    "mapper.lambda_scale": NONNEG,
-    "mapper.lambda_flow": NONNEG,
-    "mapper.lambda_pose_depth": NONNEG,
-    "mapper.unmapped_alpha": UNIT,
-    "mapper.max_gaussians": _ge(1),
-    "mapper.depth_feedback_points": _ge(0),
-    "mapper.lr_means": NONNEG,
-    "mapper.lr_colors": NONNEG,
-    "mapper.lr_opacity": NONNEG,
-    "mapper.lr_scales": NONNEG,
-    "mapper.lr_quats": NONNEG,
-    "mapper.lr_pose": NONNEG,
-    "mapper.pose_iterations": _ge(0),
-    "mapper.lr_pose_init": NONNEG,
-    "mapper.init_stride": _ge(1),
-    "mapper.init_opacity": Range(0.0, 1.0, lo_open=True, hi_open=True),
-    "mapper.min_confidence": UNIT,
-    "mapper.flow_sigma_px": POS,
-    "mapper.flow_inlier_prior": PROB,
-    "mapper.flow_outlier_range_px": POS,
-    "mapper.densify_error": NONNEG,
-    "mapper.prune_error": NONNEG,
-    "mapper.min_opacity": Range(0.0, 1.0, hi_open=True),
-    "mapper.revisit_fraction": UNIT,
-    "mapper.final_iterations_per_keyframe": _ge(0),
-    "mapper.final_lr_scale": POS,
-    "mapper.final_densify_rounds": _ge(0),
-    "mapper.final_lambda_flow": NONNEG,
-    "mapper.final_pose_iterations": _ge(0),
-    "mapper.final_lr_pose": NONNEG,
-    "mapper.final_pose_prior": NONNEG,
-    "mapper.pose_window": _ge(0),
-    "mapper.lambda_pose_prior": NONNEG,
-    "mapper.pose_prior_rel": POS,
-    "mapper.pose_min_gain": UNIT,
-    "mapper.pose_init_prior": NONNEG,
-    "mapper.num_threads": _ge(0),
-    "mapper.registration_iterations": _ge(1),
-    "mapper.registration_min_coverage": UNIT,
-    "mapper.registration_max_residual": POS,
-    "mapper.registration_min_information": NONNEG,
-    "mapper.registration_max_condition": _ge(1),
-    "mapper.registration_information_scale": POS,
-    "mapper.feedback_min_age": _ge(0),
-    "mapper.feedback_min_converged": UNIT,
-    "mapper.final_max_iterations": _ge(0),
-    "mapper.final_max_share": UNIT,
-    "mapper.final_coarse_share": UNIT,
-    "loop.skip_recent": _ge(0),
-    "loop.min_overlap": UNIT,
-    "loop.min_score": UNIT,
-    "loop.min_inliers": _ge(3),
-    "loop.inlier_threshold_m": POS,
-    "loop.max_candidates": _ge(1),
-    "loop.inlier_threshold_rel": POS,
-    "loop.min_inlier_ratio": UNIT,
-    "loop.ransac_iterations": _ge(1),
-    "loop.depth_tolerance_rel": POS,
-    "loop.points_per_submap": _ge(1),
-    "loop.orb_features": _ge(1),
-    "loop.max_reprojection_checks": _ge(1),
-    "loop.verify_view_pairs": _ge(1),
-    "loop.max_drift_ratio": POS,
-    "loop.max_rot_discrepancy_deg": Range(0.0, 180.0, lo_open=True),
-    "loop.max_residual_factor": POS,
-    "loop.rejoin_min_inliers": _ge(3),
-    "loop.rejoin_min_inlier_ratio": UNIT,
-    "loop.rejoin_min_fitness": UNIT,
-    "loop.mono_sigma_min_rel": POS,
-    "pipeline.track_points": _ge(8),
-    "pipeline.min_photo_consistency": UNIT,
-    "pipeline.min_pnp_inliers": _ge(4),
-    "pipeline.min_pnp_inlier_ratio": UNIT,
-    "pipeline.pnp_threshold_px": POS,
-    "pipeline.blank_std": NONNEG,
-    "pipeline.max_lost_frames": _ge(1),
-    "pipeline.cross_flow_back": _ge(0),
-    "pipeline.flow_points": _ge(1),
-    "pipeline.max_time_gap_s": POS,
-    "pipeline.pose_outlier_max_dev_m": NONNEG,
-    "pipeline.pose_outlier_max_dev_deg": NONNEG,
-    "run.checkpoint_every": _ge(0),
-}
-
-
-def _leaves(obj: Any, prefix: str = "") -> list[tuple[str, Any]]:
-    out = []
-    for f in dataclasses.fields(obj):
-        v = getattr(obj, f.name)
-        out += _leaves(v, f"{prefix}{f.name}.") if dataclasses.is_dataclass(v) else [(f"{prefix}{f.name}", v)]
-    return out
-
-
-def validate_config(cfg: Config, sources: dict[str, str] | None = None) -> None:
-    """Raise :class:`ConfigError` on the first value outside its range (``RANGES``); ``sources`` maps a
-    dotted key to where it was set (for the message)."""
-    sources = sources or {}
-
-    def fail(key: str, value: Any, valid: str) -> None:
-        where = sources.get(key)
-        where = f"set {where}" if where else "(the default)"
-        raise ConfigError(f"config {key}={value!r} {where} is out of range: must be {valid}")
-
-    for key, value in _leaves(cfg):
-        rule = RANGES.get(key)
-        if isinstance(rule, tuple):
-            if value not in rule:
-                fail(key, value, "one of " + ", ".join(repr(c) for c in rule))
-        elif isinstance(value, float) and not math.isfinite(value):
-            fail(key, value, rule.describe() if rule else "a finite number")
-        elif rule is not None and not isinstance(value, bool) and not rule.ok(float(value)):
-            fail(key, value, rule.describe(integer=isinstance(value, int)))
-    if not cfg.encoder.min_depth < cfg.encoder.max_depth:
-        fail("encoder.max_depth", cfg.encoder.max_depth, f"> encoder.min_depth ({cfg.encoder.min_depth})")
 
 
 def config_to_dict(cfg: Any) -> dict:

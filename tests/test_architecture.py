@@ -131,15 +131,17 @@ def _layer(module: str) -> str:
     return parts[1] if parts[0] == "gsslam" and len(parts) > 1 else parts[0]
 
 
+# the command line: cli.py (the app, run_cli) + the commands it registers from cli_batch.py, cli_bench.py
+CLI = ("cli", "cli_batch", "cli_bench")
 # layer -> the gsslam layers it must never import
 FORBIDDEN = {
-    **{low: {"slam", "run", "cli", "bench", "__main__"}
+    **{low: {"slam", "run", *CLI, "bench", "__main__"}
        for low in ("frontend", "graph", "mapping", "loop", "datasets")},
-    "slam": {"run", "cli", "bench", "__main__"},
-    "run": {"cli", "bench", "__main__"},
-    "cli": {"slam", "frontend", "graph", "mapping", "loop", "datasets"},  # the CLI enters through run/
-    **{base: {"slam", "run", "cli", "bench", "frontend", "graph", "mapping", "loop", "datasets", "viz"}
-       for base in ("config", "types", "geometry", "imaging", "errors")},
+    "slam": {"run", *CLI, "bench", "__main__"},
+    "run": {*CLI, "bench", "__main__"},
+    **{cli: {"slam", "frontend", "graph", "mapping", "loop", "datasets"} for cli in CLI},  # through run/
+    **{base: {"slam", "run", *CLI, "bench", "frontend", "graph", "mapping", "loop", "datasets", "viz"}
+       for base in ("config", "config_schema", "config_ranges", "types", "geometry", "imaging", "errors")},
 }  # fmt: skip
 PURE = {
     "eval": {"eval", "types", "geometry", "imaging", "errors"},

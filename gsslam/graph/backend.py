@@ -9,8 +9,9 @@ user swaps sensors in by adding their own factors; see docs/graph.md. Every fact
 
 Replay (checkpoints): a factor added with its *spec* (:mod:`gsslam.graph.factor_specs`, plain data) is
 recorded with every value, removal, update and batch refinement in :meth:`Backend.replay_log`, in
-order; :meth:`Backend.replay` applies such a log to a fresh backend, which rebuilds the identical iSAM2
-state (same handles, same rejections). A factor added without a spec makes the log unreplayable.
+order; :meth:`Backend.replay` (:mod:`gsslam.graph.replay`) applies such a log to a fresh backend, which
+rebuilds the identical iSAM2 state (same handles, same rejections). A factor added without a spec makes
+the log unreplayable.
 
 The backend cannot be poisoned: :meth:`Backend.update` rejects a buffered factor that names a variable
 without a value, and when iSAM2 itself fails (an indeterminate system, a factor that throws) it rolls
@@ -21,7 +22,8 @@ system solvable; the whole batch when no single one does), applies everything el
 Relinearisation thresholds per key character (:mod:`gsslam.graph.relinearization`): every new value
 is checked against the map iSAM2 gets (:meth:`Backend.add_value` refuses a wrong dimension, naming the
 key); a new character grows the map and iSAM2 is rebuilt with it before the next update. The errors
-live in :mod:`gsslam.graph.rejection` and are importable from here.
+live in :mod:`gsslam.graph.rejection` and are importable from here; the solvability checks behind the
+blame in :mod:`gsslam.graph.solvability`.
 """
 
 from __future__ import annotations
@@ -34,41 +36,13 @@ import numpy as np
 
 from gsslam.graph.rejection import BATCH_TAG, BackendError, RejectedError, Rejection, first_line
 from gsslam.graph.relinearization import RelinearizeThresholds
+from gsslam.graph.replay import replay
+from gsslam.graph.solvability import new_values_determined, solvable
+from gsslam.graph.typed_values import factor_keys, type_name, value_at, value_dim
 
 __all__ = ["Backend", "BackendError", "RejectedError", "Rejection"]
 
 log = logging.getLogger(__name__)
-
-
-def _at(values: gtsam.Values, key: int, type_name: str):
-    return getattr(values, f"at{type_name}")(key)
-
-
-def _dim(values: gtsam.Values, key: int, type_name: str) -> int:
-    return _value_dim(_at(values, key, type_name))
-
-
-def _value_dim(v) -> int:
-    """Tangent dimension of a gtsam value (``ConstantBias`` has no ``dim()`` in the binding)."""
-    if isinstance(v, (float, int, np.ndarray)):
-        return int(np.size(v))
-    if isinstance(v, gtsam.imuBias.ConstantBias):
-        return 6
-    return int(v.dim())
-
-
-def _keys(factor) -> str:
-    return ",".join(gtsam.DefaultKeyFormatter(k) for k in factor.keys())
-
-
-def _type_name(value) -> str:
-    if isinstance(value, (float, int)):
-        return "Double"
-    if isinstance(value, np.ndarray):
-        return "Vector"
-    if isinstance(value, gtsam.imuBias.ConstantBias):
-        return "ConstantBias"
-    return type(value).__name__
 
 
 class Backend:
@@ -127,31 +101,10 @@ class Backend:
         return list(self._log)
 
     def replay(self, log: list[tuple], build) -> None:
-        """Apply a :meth:`replay_log` to this (fresh) backend; ``build(spec)`` makes each factor.
-
-        Updates and batch refinements that were rejected or failed in the original run fail here in
-        the same way and are passed over, as the original caller did.
+        """Apply a :meth:`replay_log` to this (fresh) backend; ``build(spec)`` makes each factor
+        (:func:`gsslam.graph.replay.replay`: rejected updates are passed over, as the original caller did).
         """
-        for op in log:
-            kind = op[0]
-            if kind == "factor":
-                self.add_factor(build(op[2]), op[1], spec=op[2])
-            elif kind == "value":
-                self.add_value(int(op[1]), op[2])
-            elif kind == "remove":
-                self.remove_factors([int(h) for h in op[1]])
-            elif kind == "update":
-                try:
-                    self.update(int(op[1]))
-                except RejectedError:
-                    pass
-            elif kind == "batch":
-                try:
-                    self.refine_batch(op[1])
-                except BackendError:
-                    pass
-            else:
-                raise BackendError(f"unknown operation {kind!r} in a replay log")
+        replay(self, log, build)
 
     # -- building ---------------------------------------------------------------------------
     def add_factor(self, factor: gtsam.NonlinearFactor, name: str | None = None, spec=None) -> int:
@@ -184,12 +137,12 @@ class Backend:
         if self.has_value(key):
             raise BackendError(f"variable {gtsam.DefaultKeyFormatter(key)} already has a value")
         if self._thresholds is not None:
-            self._thresholds_grew |= self._thresholds.admit(key, _value_dim(value), _type_name(value))
+            self._thresholds_grew |= self._thresholds.admit(key, value_dim(value), type_name(value))
         self._new_values.insert(key, value)
-        self._types[key] = _type_name(value)
+        self._types[key] = type_name(value)
         if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3)):
             self._unreplayable = (
-                self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {_type_name(value)}"
+                self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {type_name(value)}"
             )
         self._log.append(("value", int(key), value))
 
@@ -213,7 +166,7 @@ class Backend:
         """``factor 'name' (Type on s0,s1)`` or ``factor #12 (Type on s0,s1)`` (for messages)."""
         f = self._factors[handle]
         label = repr(self._names[handle]) if handle in self._names else f"#{handle}"
-        return f"factor {label} ({type(f).__name__} on {_keys(f)})"
+        return f"factor {label} ({type(f).__name__} on {factor_keys(f)})"
 
     # -- solving ----------------------------------------------------------------------------
     def update(self, extra_iterations: int = 0) -> gtsam.ISAM2Result | None:
@@ -323,7 +276,7 @@ class Backend:
         old = gtsam.Values()
         for k in theta.keys():
             if k in self._types and not self._new_values.exists(k):
-                old.insert(k, _at(theta, k, self._types[k]))
+                old.insert(k, value_at(theta, k, self._types[k]))
         sent = [h for h in self._index if h in self._factors]  # removals of this update still apply
         graph = gtsam.NonlinearFactorGraph()
         for h in sent:
@@ -361,30 +314,8 @@ class Backend:
         return result
 
     def _new_values_determined(self) -> bool:
-        """Does each new variable get full-rank information from the buffered factors on it alone?"""
-        values = gtsam.Values(self._sent_values)
-        values.insert(self._new_values)
-        for k in self._new_values.keys():
-            info = None
-            for h in self._pending:
-                f = self._factors[h]
-                keys = list(f.keys())
-                if k not in keys:
-                    continue
-                try:
-                    A, _ = f.linearize(values).jacobian()
-                except Exception:  # noqa: BLE001 - a factor that cannot linearize is for _blame
-                    return False
-                dims = [_dim(values, kk, self._types[kk]) for kk in keys]
-                start = sum(dims[: keys.index(k)])
-                Ak = np.asarray(A)[:, start : start + dims[keys.index(k)]]
-                info = Ak.T @ Ak if info is None else info + Ak.T @ Ak
-            if info is None:
-                return False
-            ev = np.linalg.eigvalsh(info)
-            if ev[0] <= 1e-9 * max(ev[-1], 1e-300):
-                return False
-        return True
+        pending = [self._factors[h] for h in self._pending]
+        return new_values_determined(pending, self._sent_values, self._new_values, self._types)
 
     def _blame(self, error: Exception) -> list[Rejection]:
         """Drop the buffered culprits of a failed update (iSAM2 was rolled back)."""
@@ -409,20 +340,7 @@ class Backend:
         return out
 
     def _solvable(self, sent: gtsam.NonlinearFactorGraph, values: gtsam.Values, skip: int | None) -> bool:
-        graph = gtsam.NonlinearFactorGraph(sent)
-        keys = set(values.keys())
-        for h in self._pending:
-            if h != skip:
-                graph.add(self._factors[h])
-        used = {k for i in range(graph.size()) if graph.at(i) is not None for k in graph.at(i).keys()}
-        vals = gtsam.Values()
-        for k in keys & used:
-            vals.insert(k, _at(values, k, self._types[k]))
-        try:
-            graph.linearize(vals).eliminateMultifrontal()
-            return True
-        except Exception:  # noqa: BLE001
-            return False
+        return solvable(sent, values, [self._factors[h] for h in self._pending if h != skip], self._types)
 
     def refine_batch(self, max_iterations: int | None = None) -> float:
         """Levenberg-Marquardt over the whole graph from the current estimate, then re-seed iSAM2.

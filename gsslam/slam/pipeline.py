@@ -37,15 +37,15 @@ from gsslam.errors import GsslamError
 from gsslam.frontend.tracking import (
     FrameMatches,
     FrameTracker,
-    interpolate_poses,
     is_blank,
     sample_depth,
-    solve_relative_pose,
 )
-from gsslam.geometry import sim3_scale
+from gsslam.slam import poses
 from gsslam.slam.chains import Chain, ChainKeyframe, Event
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
+from gsslam.slam.plugins import call_plugins
+from gsslam.slam.poses import pose_now, relative_pnp, tracked_pose
 from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
@@ -152,7 +152,7 @@ class Pipeline:
             depth = sample_depth(
                 frame_depth(self.tracker.ref), self.intrinsics, self.intrinsics, matches.uv_ref
             )
-            T_ref_cur = self._pnp(matches, depth)
+            T_ref_cur = relative_pnp(self, matches, depth)
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
             elif self.cfg.pipeline.track_icp or getattr(self.encoder, "use_icp", False):
@@ -169,11 +169,11 @@ class Pipeline:
             return self.online_poses.get(frame.index)  # a new chain's origin, or None
         self.lost = 0
         self.frames_since_kf += 1
-        pose = self._remember(frame.index, self._tracked_pose(matches, T_ref_cur))
+        pose = self._remember(frame.index, tracked_pose(self, matches, T_ref_cur))
         if self.selector.is_keyframe(flow, self.frames_since_kf):
             self._add_keyframe(frame)
             if frame.index in self.keyframes:  # its submap was just encoded: the graph's pose
-                pose = self._remember(frame.index, self._pose_now(frame.index))
+                pose = self._remember(frame.index, pose_now(self, frame.index))
             return pose
         if self.monocular:
             self.pending.append((matches, len(self.chains) - 1))
@@ -189,34 +189,6 @@ class Pipeline:
             self.online_poses[index] = pose
             self.last_pose = pose
         return None if pose is None else pose.copy()
-
-    def _pose_now(self, index: int) -> np.ndarray | None:
-        """Current ``T_world_cam`` of a keyframe: the graph's estimate, else its pose as it arrived."""
-        kf = self.keyframes.get(index)
-        if kf is not None and not self.chains[kf.chain].failed:
-            chain = self.chains[kf.chain]
-            try:
-                return chain.world_pose(chain.graph.keyframe_pose(index))
-            except GsslamError:
-                pass
-        return self.online_poses.get(index)
-
-    def _tracked_pose(self, matches: FrameMatches, T_ref_cur: np.ndarray | None) -> np.ndarray | None:
-        """The frame's pose from its match to the reference keyframe (RGB-D: PnP already solved)."""
-        ref = matches.ref_index
-        T_world_ref = self._pose_now(ref)
-        if T_world_ref is None:
-            return None
-        if T_ref_cur is None:  # mono: PnP against the keyframe's point-map depth, once it has one
-            kf = self.keyframes.get(ref)
-            if kf is None:
-                return None
-            intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
-            depth = sample_depth(kf.depth, intr, self.intrinsics, matches.uv_ref)
-            T_ref_cur = self._pnp(matches, depth)
-            if T_ref_cur is None:
-                return None
-        return T_world_ref @ self._to_world_units(ref, T_ref_cur)
 
     def _time_gap(self, frame: Frame) -> float | None:
         """Seconds since the previous frame when more than ``pipeline.max_time_gap_s``, else None."""
@@ -347,20 +319,7 @@ class Pipeline:
             log.warning("frame %d: %s", frame_index, e)
 
     def _call_plugins(self, chain: Chain, cid: int, kind: str, calls: list[dict]) -> None:
-        from gsslam.slam.plugins import GraphEvent
-
-        for kw in calls:
-            idx = kw.get("frame_index")
-            ev = GraphEvent(
-                kind, cid, chain.graph, chain.T_world_chain, timestamp=self.timestamps.get(idx), **kw
-            )
-            for plugin in self.plugins:
-                try:
-                    getattr(plugin, f"on_{kind}")(ev)
-                except Exception as e:  # noqa: BLE001 - user code must not lose the run
-                    where = -1 if idx is None else idx
-                    self.events.append(Event(where, "plugin", f"{type(plugin).__name__}.on_{kind}: {e!r}"))
-                    log.warning("plugin %s.on_%s failed: %r", type(plugin).__name__, kind, e)
+        call_plugins(self.plugins, chain, cid, kind, calls, self.timestamps, self.events)
 
     def _relocalize(self, chain: Chain, cid: int, sid: int, frame_index: int) -> None:
         """A chain not yet in the world frame: try to place it against an earlier chain's submaps."""
@@ -446,80 +405,19 @@ class Pipeline:
 
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """``T_world_cam`` [4, 4] of every keyframe the graphs know (current estimates)."""
-        out = {}
-        for idx, kf in self.keyframes.items():
-            chain = self.chains[kf.chain]
-            try:
-                out[idx] = chain.world_pose(chain.graph.keyframe_pose(idx))
-            except GsslamError as e:
-                log.warning("keyframe %d has no pose: %s", idx, e)
-        for chain in self.chains:  # a chain that never got a submap: its origin keyframe only
-            if not chain.encodings and self.window and chain is self.chains[-1]:
-                out.setdefault(self.window[0].index, chain.T_world_chain.copy())
-        return out
+        return poses.keyframe_poses(self)
 
     def frame_poses(self) -> dict[int, np.ndarray]:
-        """``T_world_cam`` of every frame that has one: keyframes, then non-keyframes via their keyframe."""
-        kf_poses = self.keyframe_poses()
-        out = dict(kf_poses)
-        for idx, (ref, T_ref_cur) in self.relative.items():
-            if ref in kf_poses:
-                out[idx] = kf_poses[ref] @ self._to_world_units(ref, T_ref_cur)
-        pc = self.cfg.pipeline
-        for m, _cid in self.pending:
-            if m.ref_index not in kf_poses or m.ref_index not in self.keyframes:
-                continue
-            kf = self.keyframes[m.ref_index]
-            intr = self.chains[kf.chain].encodings[kf.submap].intrinsics
-            depth = sample_depth(kf.depth, intr, self.intrinsics, m.uv_ref)
-            T = self._pnp(m, depth)
-            if T is not None:
-                out[m.cur_index] = kf_poses[m.ref_index] @ self._to_world_units(m.ref_index, T)
-        # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
-        out.update(interpolate_poses(out, [m.cur_index for m, _ in self.pending], self.timestamps))
-        if pc.pose_outlier_max_dev_m > 0:  # and so is one whose PnP pose leaves its keyframes' path
-            from gsslam.frontend.pose_outliers import find_pose_outliers
-
-            bad = find_pose_outliers(
-                out, set(kf_poses), self.timestamps, pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg
-            )
-            for f in bad:
-                out.pop(f)
-            out.update(interpolate_poses(out, bad, self.timestamps))
-            self.n_pose_outliers = len(bad)
-        return dict(sorted(out.items()))
+        """``T_world_cam`` of every frame that has one: keyframes, then non-keyframes via their keyframe
+        (:func:`gsslam.slam.poses.frame_poses`)."""
+        out, n_outliers = poses.frame_poses(self)
+        if n_outliers is not None:
+            self.n_pose_outliers = n_outliers
+        return out
 
     def frame_chains(self) -> dict[int, int]:
         """The chain of every frame that can have a pose: its keyframe's chain (or the tracked chain)."""
-        out = {idx: kf.chain for idx, kf in self.keyframes.items()}
-        for idx, (ref, _T) in self.relative.items():
-            if ref in self.keyframes:
-                out[idx] = self.keyframes[ref].chain
-        for m, cid in self.pending:
-            out[m.cur_index] = cid
-        if self.window and self.chains:  # the origin of a chain that has no submap yet
-            out.setdefault(self.window[0].index, len(self.chains) - 1)
-        return out
-
-    def _pnp(self, matches: FrameMatches, depth: np.ndarray) -> np.ndarray | None:
-        """``T_ref_cur`` [4, 4] by PnP of the flow matches on the reference depth [N] (None: failed)."""
-        pc = self.cfg.pipeline
-        K = self.intrinsics.K
-        T, _ = solve_relative_pose(
-            matches, depth, K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
-        )
-        return T
-
-    def _to_world_units(self, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
-        """Scale a relative pose measured in the keyframe's submap units to world units."""
-        kf = self.keyframes.get(ref)
-        if kf is None or not self.monocular:
-            return T_ref_cur
-        chain = self.chains[kf.chain]
-        s = chain.scale * sim3_scale(chain.graph.submap_pose(kf.submap))
-        T = T_ref_cur.copy()
-        T[:3, 3] *= s
-        return T
+        return poses.frame_chains(self)
 
     def current_pose_estimate(self) -> np.ndarray:
         """Best guess of the latest camera pose: the last pose :meth:`process` returned (or the latest

@@ -16,11 +16,15 @@ is reported as a ``plugin`` event; the run continues.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from gsslam.geometry import compose_rigid, invert_T
+from gsslam.slam.chains import Event
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -79,3 +83,20 @@ class Plugin:
 
     def on_end(self, event: GraphEvent) -> None:
         pass
+
+
+def call_plugins(
+    plugins: list, chain, cid: int, kind: str, calls: list[dict], timestamps: dict, events: list
+) -> None:
+    """Call ``on_<kind>`` of every plugin with a :class:`GraphEvent` per entry of ``calls`` (its keyword
+    arguments); a plugin that raises is logged and recorded in ``events``, the run goes on."""
+    for kw in calls:
+        idx = kw.get("frame_index")
+        ev = GraphEvent(kind, cid, chain.graph, chain.T_world_chain, timestamp=timestamps.get(idx), **kw)
+        for plugin in plugins:
+            try:
+                getattr(plugin, f"on_{kind}")(ev)
+            except Exception as e:  # noqa: BLE001 - user code must not lose the run
+                where = -1 if idx is None else idx
+                events.append(Event(where, "plugin", f"{type(plugin).__name__}.on_{kind}: {e!r}"))
+                log.warning("plugin %s.on_%s failed: %r", type(plugin).__name__, kind, e)

@@ -1,0 +1,135 @@
+"""Poses of a pipeline's frames, read from its chains' graphs (nothing here changes the pipeline).
+
+A keyframe's pose is its graph's estimate; a non-keyframe's is its tracked pose relative to its
+keyframe (PnP on the keyframe's depth: sensor depth in RGB-D, the submap's point map in mono) composed
+with the keyframe's pose; a frame whose PnP fails, or whose pose leaves its keyframes' path, is
+interpolated in time. ``p`` is a :class:`gsslam.slam.pipeline.Pipeline`; these functions read its
+public state (``cfg``, ``intrinsics``, ``monocular``, ``chains``, ``keyframes``, ``relative``,
+``pending``, ``window``, ``timestamps``, ``online_poses``).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from gsslam.errors import GsslamError
+from gsslam.frontend.tracking import FrameMatches, interpolate_poses, sample_depth, solve_relative_pose
+from gsslam.geometry import sim3_scale
+
+log = logging.getLogger(__name__)
+
+
+def relative_pnp(p, matches: FrameMatches, depth: np.ndarray) -> np.ndarray | None:
+    """``T_ref_cur`` [4, 4] by PnP of the flow matches on the reference depth [N] (None: failed)."""
+    pc = p.cfg.pipeline
+    K = p.intrinsics.K
+    T, _ = solve_relative_pose(
+        matches, depth, K, pc.min_pnp_inliers, pc.min_pnp_inlier_ratio, pc.pnp_threshold_px
+    )
+    return T
+
+
+def to_world_units(p, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
+    """Scale a relative pose measured in the keyframe's submap units to world units."""
+    kf = p.keyframes.get(ref)
+    if kf is None or not p.monocular:
+        return T_ref_cur
+    chain = p.chains[kf.chain]
+    s = chain.scale * sim3_scale(chain.graph.submap_pose(kf.submap))
+    T = T_ref_cur.copy()
+    T[:3, 3] *= s
+    return T
+
+
+def pose_now(p, index: int) -> np.ndarray | None:
+    """Current ``T_world_cam`` of a keyframe: the graph's estimate, else its pose as it arrived."""
+    kf = p.keyframes.get(index)
+    if kf is not None and not p.chains[kf.chain].failed:
+        chain = p.chains[kf.chain]
+        try:
+            return chain.world_pose(chain.graph.keyframe_pose(index))
+        except GsslamError:
+            pass
+    return p.online_poses.get(index)
+
+
+def tracked_pose(p, matches: FrameMatches, T_ref_cur: np.ndarray | None) -> np.ndarray | None:
+    """The frame's pose from its match to the reference keyframe (RGB-D: PnP already solved)."""
+    ref = matches.ref_index
+    T_world_ref = pose_now(p, ref)
+    if T_world_ref is None:
+        return None
+    if T_ref_cur is None:  # mono: PnP against the keyframe's point-map depth, once it has one
+        kf = p.keyframes.get(ref)
+        if kf is None:
+            return None
+        intr = p.chains[kf.chain].encodings[kf.submap].intrinsics
+        depth = sample_depth(kf.depth, intr, p.intrinsics, matches.uv_ref)
+        T_ref_cur = relative_pnp(p, matches, depth)
+        if T_ref_cur is None:
+            return None
+    return T_world_ref @ to_world_units(p, ref, T_ref_cur)
+
+
+def keyframe_poses(p) -> dict[int, np.ndarray]:
+    """``T_world_cam`` [4, 4] of every keyframe the graphs know (current estimates)."""
+    out = {}
+    for idx, kf in p.keyframes.items():
+        chain = p.chains[kf.chain]
+        try:
+            out[idx] = chain.world_pose(chain.graph.keyframe_pose(idx))
+        except GsslamError as e:
+            log.warning("keyframe %d has no pose: %s", idx, e)
+    for chain in p.chains:  # a chain that never got a submap: its origin keyframe only
+        if not chain.encodings and p.window and chain is p.chains[-1]:
+            out.setdefault(p.window[0].index, chain.T_world_chain.copy())
+    return out
+
+
+def frame_poses(p) -> tuple[dict[int, np.ndarray], int | None]:
+    """``(T_world_cam of every frame that has one, number of pose outliers replaced)``: keyframes, then
+    non-keyframes via their keyframe. The count is None when the outlier check is off."""
+    kf_poses = keyframe_poses(p)
+    out = dict(kf_poses)
+    for idx, (ref, T_ref_cur) in p.relative.items():
+        if ref in kf_poses:
+            out[idx] = kf_poses[ref] @ to_world_units(p, ref, T_ref_cur)
+    pc = p.cfg.pipeline
+    for m, _cid in p.pending:
+        if m.ref_index not in kf_poses or m.ref_index not in p.keyframes:
+            continue
+        kf = p.keyframes[m.ref_index]
+        intr = p.chains[kf.chain].encodings[kf.submap].intrinsics
+        depth = sample_depth(kf.depth, intr, p.intrinsics, m.uv_ref)
+        T = relative_pnp(p, m, depth)
+        if T is not None:
+            out[m.cur_index] = kf_poses[m.ref_index] @ to_world_units(p, m.ref_index, T)
+    # a tracked frame whose PnP failed (or whose keyframe has no depth) is interpolated in time
+    out.update(interpolate_poses(out, [m.cur_index for m, _ in p.pending], p.timestamps))
+    n_outliers = None
+    if pc.pose_outlier_max_dev_m > 0:  # and so is one whose PnP pose leaves its keyframes' path
+        from gsslam.frontend.pose_outliers import find_pose_outliers
+
+        bad = find_pose_outliers(
+            out, set(kf_poses), p.timestamps, pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg
+        )
+        for f in bad:
+            out.pop(f)
+        out.update(interpolate_poses(out, bad, p.timestamps))
+        n_outliers = len(bad)
+    return dict(sorted(out.items())), n_outliers
+
+
+def frame_chains(p) -> dict[int, int]:
+    """The chain of every frame that can have a pose: its keyframe's chain (or the tracked chain)."""
+    out = {idx: kf.chain for idx, kf in p.keyframes.items()}
+    for idx, (ref, _T) in p.relative.items():
+        if ref in p.keyframes:
+            out[idx] = p.keyframes[ref].chain
+    for m, cid in p.pending:
+        out[m.cur_index] = cid
+    if p.window and p.chains:  # the origin of a chain that has no submap yet
+        out.setdefault(p.window[0].index, len(p.chains) - 1)
+    return out

@@ -89,6 +89,18 @@ def check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width,
         raise RasterizeError(f"image size must be positive, got {width}x{height}")
 
 
+def _tan_limits(fx, fy, cx, cy, width: int, height: int):
+    """Clamp of ``x/z`` and ``y/z``, 30 % of the half field of view beyond the image (as in 3DGS/gsplat):
+    ``(lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg)``."""
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    return (
+        (width - cx) / fx + 0.3 * tan_x,
+        cx / fx + 0.3 * tan_x,
+        (height - cy) / fy + 0.3 * tan_y,
+        cy / fy + 0.3 * tan_y,
+    )
+
+
 def project_gaussians(
     means: Tensor,  # [N, 3] world
     quats: Tensor,  # [N, 4] (w, x, y, z)
@@ -114,9 +126,7 @@ def project_gaussians(
 
     # Jacobian of the perspective projection, with x/z and y/z clamped slightly beyond the image
     # (as in 3DGS/gsplat) so that Gaussians far outside the view do not blow up.
-    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
-    lim_x_pos, lim_x_neg = (width - cx) / fx + 0.3 * tan_x, cx / fx + 0.3 * tan_x
-    lim_y_pos, lim_y_neg = (height - cy) / fy + 0.3 * tan_y, cy / fy + 0.3 * tan_y
+    lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _tan_limits(fx, fy, cx, cy, width, height)
     tx = z_safe * torch.minimum(torch.maximum(x * inv_z, -lim_x_neg), lim_x_pos)
     ty = z_safe * torch.minimum(torch.maximum(y * inv_z, -lim_y_neg), lim_y_pos)
     # rows of J W (J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]], W = R_cw), written out
@@ -184,9 +194,8 @@ def in_view(
     front = z > near
     inv_z = 1.0 / torch.where(front, z, torch.ones_like(z))
     u, v = fx * x * inv_z + cx, fy * y * inv_z + cy
-    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
-    lim_x = torch.maximum((width - cx) / fx, cx / fx) + 0.3 * tan_x
-    lim_y = torch.maximum((height - cy) / fy, cy / fy) + 0.3 * tan_y
+    lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _tan_limits(fx, fy, cx, cy, width, height)
+    lim_x, lim_y = torch.maximum(lim_x_pos, lim_x_neg), torch.maximum(lim_y_pos, lim_y_neg)
     s = scales.detach().amax(dim=-1) * inv_z  # [N]
     trace = s * s * (fx * fx * (1 + lim_x * lim_x) + fy * fy * (1 + lim_y * lim_y)) + 2 * LOW_PASS
     r = SIGMA_CUTOFF * torch.sqrt(trace) * 1.001 + 1.0  # px, >= the radius project_gaussians finds

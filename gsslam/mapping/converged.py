@@ -10,7 +10,8 @@ ones are the map of a region seen long ago, so evidence against them on a revisi
 - :func:`converged_share`: how much of a view the map covers and which share of the rendered weight
   there the converged Gaussians explain (rendered as a colour channel: no kernel change);
 - :func:`converged_view`: a :class:`MapState` whose model holds only them (the map is unchanged);
-- :func:`converged_depth`: rendered depths of the converged Gaussians alone at a pose (depth priors).
+- :func:`converged_depth`: rendered depths of the converged Gaussians alone at a pose (depth priors);
+- :func:`covered_depths`: well-covered pixels of any render and their depths.
 """
 
 from __future__ import annotations
@@ -82,11 +83,21 @@ def converged_depth(
     _, share = converged_share(state, T_cam_world, mask)
     if share < state.cfg.feedback_min_converged or not bool(mask.any()):
         return np.zeros((0, 2)), np.zeros(0), share
-    out = render(converged_view(state, mask), T_cam_world)
+    uv, depth = covered_depths(
+        render(converged_view(state, mask), T_cam_world), n_points, state.rng, min_alpha
+    )
+    return uv, depth, share
+
+
+def covered_depths(
+    out, n_points: int, rng: np.random.Generator, min_alpha: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``n_points`` random pixels of a render with alpha > ``min_alpha`` and a positive depth:
+    (uv [N, 2] at the render's resolution, depth [N] world units)."""
     ok = (out.alpha > min_alpha) & (out.depth > 0)
     vv, uu = (a.cpu().numpy() for a in torch.nonzero(ok, as_tuple=True))
     if len(vv) > n_points:
-        pick = state.rng.choice(len(vv), size=n_points, replace=False)
+        pick = rng.choice(len(vv), size=n_points, replace=False)
         vv, uu = vv[pick], uu[pick]
     depth = out.depth.cpu().numpy()[vv, uu].astype(np.float64)
-    return np.stack([uu, vv], axis=1).astype(np.float64), depth, share
+    return np.stack([uu, vv], axis=1).astype(np.float64), depth

@@ -36,6 +36,7 @@ import torch
 from gsslam.config import MapperConfig
 from gsslam.geometry import invert_T, split_sim3
 from gsslam.mapping import final_pass, outputs
+from gsslam.mapping.converged import covered_depths
 from gsslam.mapping.densify import DensifyStrategy
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import MapperError, make_keyframe, resize, resolve_device, torch_threads
@@ -261,14 +262,14 @@ class GaussianMapper:
         With ``T_world_cam`` [4, 4] the map is rendered from that pose instead (a frame not in the map).
         """
         out = self.render_keyframe(frame_index) if T_world_cam is None else self.render_pose(T_world_cam)
-        ok = (out.alpha > min_alpha) & (out.depth > 0)
-        vv, uu = (a.cpu().numpy() for a in torch.nonzero(ok, as_tuple=True))
-        if len(vv) > n_points:
-            pick = self.map.rng.choice(len(vv), size=n_points, replace=False)
-            vv, uu = vv[pick], uu[pick]
-        depth = out.depth.cpu().numpy()[vv, uu].astype(np.float64)
-        uv = np.stack([(uu + 0.5) / self.factor_x - 0.5, (vv + 0.5) / self.factor_y - 0.5], axis=1)
-        return uv, depth
+        uv, depth = covered_depths(out, n_points, self.map.rng, min_alpha)
+        return self.full_res_uv(uv), depth
+
+    def full_res_uv(self, uv: np.ndarray) -> np.ndarray:
+        """Pixel centres [N, 2] at the mapper resolution -> the same points at the input resolution."""
+        return np.stack(
+            [(uv[:, 0] + 0.5) / self.factor_x - 0.5, (uv[:, 1] + 0.5) / self.factor_y - 0.5], axis=1
+        )
 
     def evaluate(
         self,

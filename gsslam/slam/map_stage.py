@@ -119,9 +119,7 @@ class MapStage:
                 pos = list(enc.frame_indices).index(idx)
                 T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
                 uv, depth, _ = converged_depth(self.mapper.map, T, self.cfg.depth_feedback_points)
-                fx, fy = self.mapper.factor_x, self.mapper.factor_y
-                uv = np.stack([(uv[:, 0] + 0.5) / fx - 0.5, (uv[:, 1] + 0.5) / fy - 0.5], axis=1)  # full res
-                self.pending_depth[idx] = (uv, depth)
+                self.pending_depth[idx] = (self.mapper.full_res_uv(uv), depth)
         if self.cfg.registration_feedback:
             self.pending = self._register(chains, cid, sid, enc, by_index, new_keyframes)
         for idx in new_keyframes:

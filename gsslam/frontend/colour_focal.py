@@ -177,6 +177,20 @@ def _cost(
     return reprojection_cost(pair, pair.T_b_a, colour, (intr.fx, intr.fy))
 
 
+def parabola_min(xs: np.ndarray, cs: np.ndarray) -> tuple[float, float, bool]:
+    """Minimum of a scan ``cs`` over the even grid ``xs``, refined by the parabola through it and its
+    neighbours: (x, cost at the grid minimum, whether the minimum is inside the grid)."""
+    j = int(np.argmin(cs))
+    x = float(xs[j])
+    inside = 0 < j < len(xs) - 1
+    if inside:
+        a, b, c = cs[j - 1], cs[j], cs[j + 1]
+        den = a - 2 * b + c
+        if den > 0:
+            x += 0.5 * (a - c) / den * float(xs[j + 1] - xs[j])
+    return x, float(cs[j]), inside
+
+
 def estimate_focal_ratio(
     frames: list[Frame],  # the first frames of the sequence, with depth
     flow: FlowEstimator,
@@ -206,13 +220,7 @@ def estimate_focal_ratio(
             tot, cnt = tot + s, cnt + m
         costs[j] = tot / max(cnt, 1)
         n = max(n, cnt)
-    best = int(np.argmin(costs))
-    k_best = float(ks[best])
-    if 0 < best < len(ks) - 1:  # parabola through the minimum and its neighbours
-        a, b, c = costs[best - 1], costs[best], costs[best + 1]
-        den = a - 2 * b + c
-        if den > 0:
-            k_best += 0.5 * (a - c) / den * float(ks[1] - ks[0])
+    k_best, cost_best, inside = parabola_min(ks, costs)
     c1 = float(np.interp(1.0, ks, costs))
-    ok = 0 < best < len(ks) - 1 and len(pairs) >= 3 and n >= 300
-    return FocalEstimate(k_best, len(pairs), n, c1, float(costs[best]), ok)
+    ok = inside and len(pairs) >= 3 and n >= 300
+    return FocalEstimate(k_best, len(pairs), n, c1, cost_best, ok)

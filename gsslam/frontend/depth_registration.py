@@ -36,6 +36,7 @@ from gsslam.frontend.colour_focal import (
     flow_pairs,
     mean_cost,
     pair_icp,
+    parabola_min,
 )
 from gsslam.frontend.flow import FlowEstimator
 from gsslam.types import CameraIntrinsics, Frame
@@ -86,23 +87,11 @@ def _scan_k(pairs, Ts, intr: CameraIntrinsics, given: str, ks: np.ndarray, b: fl
     return out
 
 
-def _parabola_min(xs: np.ndarray, cs: np.ndarray) -> tuple[float, float, bool]:  # -> (x, cost, inside)
-    j = int(np.argmin(cs))
-    x = float(xs[j])
-    inside = 0 < j < len(xs) - 1
-    if inside:
-        a, b, c = cs[j - 1], cs[j], cs[j + 1]
-        den = a - 2 * b + c
-        if den > 0:
-            x += 0.5 * (a - c) / den * float(xs[j + 1] - xs[j])
-    return x, float(cs[j]), inside
-
-
 def _fit_fixed_motion(pairs, Ts, intr, given: str, k0: float | None, with_baseline: bool):
     """(k, b, cost, inside) for fixed ICP motions: k scan, then alternating baseline / k scans."""
     if k0 is None:
         ks = np.arange(K_RANGE[0], K_RANGE[1] + 1e-9, 0.0025)
-        k, _, inside = _parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, 0.0))
+        k, _, inside = parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, 0.0))
     else:
         k, inside = k0, True
     b = 0.0
@@ -111,9 +100,9 @@ def _fit_fixed_motion(pairs, Ts, intr, given: str, k0: float | None, with_baseli
     ]:
         bs = np.arange(b - half_b, b + half_b + 1e-9, step_b)
         cb = np.array([_scan_k(pairs, Ts, intr, given, np.array([k]), float(x))[0] for x in bs])
-        b, _, _ = _parabola_min(bs, cb)
+        b, _, _ = parabola_min(bs, cb)
         ks = np.arange(k - half_k, k + half_k + 1e-9, 0.0025)
-        k, _, _ = _parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, b))
+        k, _, _ = parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, b))
     cost = float(_scan_k(pairs, Ts, intr, given, np.array([k]), b)[0])
     return k, b, cost, inside
 
@@ -153,7 +142,7 @@ def _fit_colour_given(pairs, intr, with_baseline: bool):
             else _fit_fixed_motion(pairs, Ts, intr, "colour", float(k), with_baseline)[1:3][::-1]
         )
     costs = np.array([c for c, _ in fine])
-    k, cost, _ = _parabola_min(fine_ks, costs)
+    k, cost, _ = parabola_min(fine_ks, costs)
     b = float(fine[int(np.argmin(costs))][1])
     inside = 0 < j < len(ks) - 1 and np.isfinite(cost)
     return k, b, cost, inside

@@ -58,10 +58,12 @@ def ray_point_residual(A, B, X_a: np.ndarray, X_b: np.ndarray, W: np.ndarray, wa
     if not want_jac:
         return r.ravel(), None, None
     n = len(X_a)
-    Ja = np.concatenate([-_skew(Y), np.broadcast_to(np.eye(3), (n, 3, 3)), Y[:, :, None]], axis=2)  # [N, 3, 7]
-    Jb = np.concatenate([-_skew(X_b), np.broadcast_to(np.eye(3), (n, 3, 3)), X_b[:, :, None]], axis=2)
+    eye = np.broadcast_to(np.eye(3), (n, 3, 3))
+    Ja = np.concatenate([-_skew(Y), eye, Y[:, :, None]], axis=2)  # [N, 3, 7]
+    Jb = np.concatenate([-_skew(X_b), eye, X_b[:, :, None]], axis=2)
     Jb = -s_ab * np.einsum("ij,njk->nik", R_ab, Jb)
-    return r.ravel(), np.einsum("nij,njk->nik", W, Ja).reshape(-1, 7), np.einsum("nij,njk->nik", W, Jb).reshape(-1, 7)
+    JA = np.einsum("nij,njk->nik", W, Ja).reshape(-1, 7)
+    return r.ravel(), JA, np.einsum("nij,njk->nik", W, Jb).reshape(-1, 7)
 
 
 def make_ray_point_factor(
@@ -83,7 +85,8 @@ def make_ray_point_factor(
     W = ray_whitening(X_a, 1.0 / w_ray, 1.0 / w_perp)
     noise = gtsam.noiseModel.Unit.Create(3 * len(X_a))
     if dcs_phi > 0:
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS.Create(dcs_phi * 3 * len(X_a)), noise)
+        dcs = gtsam.noiseModel.mEstimator.DCS.Create(dcs_phi * 3 * len(X_a))
+        noise = gtsam.noiseModel.Robust.Create(dcs, noise)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         ka, kb = this.keys()

@@ -177,8 +177,15 @@ class SubmapGraph:
             raise GraphError(f"registration on submap {submap}: {e}") from e
 
     def add_loop(
-        self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None, local_units: bool = False,
-        sigma_perp: float | None = None, dcs_phi: float = 0.0,
+        self,
+        i: int,
+        m: int,
+        X_i: np.ndarray,
+        X_m: np.ndarray,
+        sigma: float | None = None,
+        local_units: bool = False,
+        sigma_perp: float | None = None,
+        dcs_phi: float = 0.0,
     ) -> int:
         """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames.
 
@@ -195,9 +202,8 @@ class SubmapGraph:
         sig = self.cfg.loop_sigma_m if sigma is None else sigma
         try:
             if local_units and sigma_perp is not None:
-                return self._add(
-                    spec("ray_point", submap_key(i), submap_key(m), X_i, X_m, sig, sigma_perp, dcs_phi=dcs_phi)
-                )
+                ki, km = submap_key(i), submap_key(m)
+                return self._add(spec("ray_point", ki, km, X_i, X_m, sig, sigma_perp, dcs_phi=dcs_phi))
             if local_units:
                 return self._add(spec("relative_point", submap_key(i), submap_key(m), X_i, X_m, sig))
             return self._add(spec("point", submap_key(i), submap_key(m), X_i, X_m, sig))

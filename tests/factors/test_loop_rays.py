@@ -37,7 +37,8 @@ def test_equal_sigmas_give_the_relative_point_factor():
     rng = np.random.default_rng(22)
     X_a, X_b = _points(rng)
     v = _values(rng)
-    ray, iso = make_ray_point_factor(S(0), S(1), X_a, X_b, 0.05, 0.05), make_relative_point_factor(S(0), S(1), X_a, X_b, 0.05)
+    ray = make_ray_point_factor(S(0), S(1), X_a, X_b, 0.05, 0.05)
+    iso = make_relative_point_factor(S(0), S(1), X_a, X_b, 0.05)
     assert np.isclose(ray.error(v), iso.error(v), rtol=1e-10)
 
 

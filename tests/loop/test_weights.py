@@ -72,7 +72,6 @@ def test_loop_stage_adds_mono_loops_with_their_residual_sigma(revisit_mono):
     the rays (session 6), in submap-i units."""
     from types import SimpleNamespace
 
-    from gsslam.graph.keys import submap_key
     from gsslam.slam.loop_stage import LoopStage
 
     sm = revisit_mono[0]
@@ -89,14 +88,15 @@ def test_loop_stage_adds_mono_loops_with_their_residual_sigma(revisit_mono):
     assert not [op for op in graph.backend.replay_log() if op[0] == "factor" and op[2][0] == "point"
                 and op[2][1][0] > op[2][1][1]]  # fmt: skip  # no world-unit loop (add_loop(i, m): i > m)
     for _, (_key_i, _key_m, X_i, X_m, sigma, sigma_perp), kw in loops:
-        s_ray, s_perp = ray_sigmas(LoopConstraint(1, 0, X_i, X_m, umeyama(X_m, X_i, with_scale=True), 1.0, 1.0, 1.0))
+        lc = LoopConstraint(1, 0, X_i, X_m, umeyama(X_m, X_i, with_scale=True), 1.0, 1.0, 1.0)
+        s_ray, s_perp = ray_sigmas(lc)
         # each is its residual RMS or the common floor (0.25 x 2 % of depth; active across the rays here)
         assert np.isclose(sigma, s_ray, rtol=1e-6) or (sigma > s_ray and np.isclose(sigma, sigma_perp))
         assert np.isclose(sigma_perp, s_perp, rtol=1e-6) or sigma_perp > s_perp
         assert kw["dcs_phi"] == LoopConfig().mono_dcs_phi
 
 
-# --- session 6: noise along / across the rays, and a DCS kernel per loop -------------------------------------
+# --- session 6: noise along / across the rays, and a DCS kernel per loop ---
 
 
 def _ray_loop(rng, n=300, sigma_ray=0.03, sigma_perp=0.005, thr=0.015):
@@ -164,7 +164,8 @@ def test_ray_noise_resists_a_depth_distortion():
     X_i = lc.X_i * (1 + 0.06 * lc.X_i[:, :1] / lc.X_i[:, 2:3])  # along each ray
     lc = dataclasses.replace(lc, X_i=X_i, T_i_m=umeyama(lc.X_m, X_i, with_scale=True))
     cfg = LoopConfig()
-    err_iso = _rot_err_deg(_fit_loop(lc, loop_weight(lc, "mono", dataclasses.replace(cfg, mono_sigma_ray=False))), T)
+    iso = loop_weight(lc, "mono", dataclasses.replace(cfg, mono_sigma_ray=False))
+    err_iso = _rot_err_deg(_fit_loop(lc, iso), T)
     err_ray = _rot_err_deg(_fit_loop(lc, loop_weight(lc, "mono", cfg)), T)
     assert err_iso > 1.5  # measured: 1.98 deg
     assert err_ray < 0.85 * err_iso  # measured: 1.54 deg
@@ -188,18 +189,23 @@ def test_dcs_down_weights_a_wrong_loop_not_a_good_one():
 
     def solve(phi):
         g = gtsam.NonlinearFactorGraph()
-        g.add(gtsam.PriorFactorSimilarity3(S(0), gtsam.Similarity3(), gtsam.noiseModel.Isotropic.Sigma(7, 1e-6)))
+        pin = gtsam.noiseModel.Isotropic.Sigma(7, 1e-6)
+        g.add(gtsam.PriorFactorSimilarity3(S(0), gtsam.Similarity3(), pin))
         fs = []
         for lc in (good, bad):
             w = loop_weight(lc, "mono", dataclasses.replace(LoopConfig(), mono_dcs_phi=phi))
-            fs.append(make_ray_point_factor(S(1), S(0), lc.X_i, lc.X_m, w.sigma, w.sigma_perp, dcs_phi=w.dcs_phi))
+            fs.append(
+                make_ray_point_factor(S(1), S(0), lc.X_i, lc.X_m, w.sigma, w.sigma_perp, dcs_phi=w.dcs_phi)
+            )
             g.add(fs[-1])
         v = gtsam.Values()
         v.insert(S(0), gtsam.Similarity3())
         v.insert(S(1), to_gtsam(np.linalg.inv(T), "sim3"))  # the truth: T_m_i
         out = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
         weights = [
-            gtsam.noiseModel.mEstimator.DCS.Create(3 * len(lc.X_i)).weight(np.linalg.norm(f.unwhitenedError(out)))
+            gtsam.noiseModel.mEstimator.DCS.Create(3 * len(lc.X_i)).weight(
+                np.linalg.norm(f.unwhitenedError(out))
+            )
             for f, lc in zip(fs, (good, bad))
         ]
         return _rot_err_deg(np.linalg.inv(to_matrix(out.atSimilarity3(S(1)))), T), weights

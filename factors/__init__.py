@@ -12,6 +12,7 @@ from .flow import make_flow_factor, mixture_weights
 from .keyframe_pose import make_keyframe_pose_factor
 from .keyframe_tie import make_keyframe_tie_factor
 from .loop_points import make_relative_point_factor
+from .loop_rays import make_ray_point_factor
 from .points import make_point_factor
 from .registration import make_registration_factor
 from .scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
@@ -25,6 +26,7 @@ __all__ = [
     "make_keyframe_tie_factor",
     "make_point_factor",
     "make_registration_factor",
+    "make_ray_point_factor",
     "make_relative_point_factor",
     "make_scale_factor",
     "make_scale_prior_factor",

@@ -187,6 +187,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "loop.rejoin_min_inlier_ratio": UNIT,
     "loop.rejoin_min_fitness": UNIT,
     "loop.mono_sigma_min_rel": POS,
+    "loop.mono_dcs_phi": NONNEG,
     "pipeline.track_points": _ge(8),
     "pipeline.min_photo_consistency": UNIT,
     "pipeline.min_pnp_inliers": _ge(4),

@@ -194,6 +194,8 @@ class LoopConfig:
     rejoin_min_fitness: float = 0.3  # mono chains re-joined: new points on the earlier surface after ICP
     mono_sigma_from_residual: bool = True  # mono: loop residual in submap units, sigma = the loop's inlier RMS (else graph.loop_sigma_m, world units)
     mono_sigma_min_rel: float = 0.25  # mono: floor of that sigma, as a fraction of the loop's inlier distance
+    mono_sigma_ray: bool = True  # mono: loop noise along / across each point's viewing ray, from the loop's residuals (else one isotropic sigma)
+    mono_dcs_phi: float = 1.0  # mono, ray noise: DCS kernel per loop, full weight up to chi2 = this x 3N (0: no kernel)
 
 
 @dataclass(frozen=True)

@@ -177,13 +177,23 @@ class SubmapGraph:
             raise GraphError(f"registration on submap {submap}: {e}") from e
 
     def add_loop(
-        self, i: int, m: int, X_i: np.ndarray, X_m: np.ndarray, sigma: float | None = None, local_units: bool = False
+        self,
+        i: int,
+        m: int,
+        X_i: np.ndarray,
+        X_m: np.ndarray,
+        sigma: float | None = None,
+        local_units: bool = False,
+        sigma_perp: float | None = None,
+        dcs_phi: float = 0.0,
     ) -> int:
         """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames.
 
         ``sigma``: per point, world units (default ``loop_sigma_m``); with ``local_units`` (mono) the
         residual and ``sigma`` are in submap i's units (:mod:`gsslam.factors.loop_points`), so the loop
-        cannot be met by shrinking the chain's scale."""
+        cannot be met by shrinking the chain's scale. With ``local_units`` and ``sigma_perp``, ``sigma``
+        is along each point's viewing ray and ``sigma_perp`` across it, with a DCS kernel when
+        ``dcs_phi > 0`` (:mod:`gsslam.factors.loop_rays`)."""
         for s in (i, m):
             if not 0 <= s < len(self._subs):
                 raise GraphError(f"loop names submap {s} but only {len(self._subs)} submaps exist")
@@ -191,6 +201,9 @@ class SubmapGraph:
             raise GraphError("a loop needs two different submaps")
         sig = self.cfg.loop_sigma_m if sigma is None else sigma
         try:
+            if local_units and sigma_perp is not None:
+                ki, km = submap_key(i), submap_key(m)
+                return self._add(spec("ray_point", ki, km, X_i, X_m, sig, sigma_perp, dcs_phi=dcs_phi))
             if local_units:
                 return self._add(spec("relative_point", submap_key(i), submap_key(m), X_i, X_m, sig))
             return self._add(spec("point", submap_key(i), submap_key(m), X_i, X_m, sig))

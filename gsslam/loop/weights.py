@@ -18,9 +18,21 @@ strong loop in world units pulls the chain's scale down: every world-unit residu
 the submaps' scales. Measured on teddy forward-backward-forward (mono, 28 loops): the inlier-RMS
 sigma on world-unit residuals shrank the trajectory 2.7x (Sim(3) alignment scale 0.84 -> 2.26,
 ATE 1.37 -> 44 cm).
+
+Session 6 (``loop.mono_sigma_ray``, default): one isotropic sigma treats the depth error of a mono point
+(along its viewing ray, 1.3-4x the error across it in the loops measured) like its pixel error. A
+depth distortion of the point maps then tilts the loop's Sim(3), and many loops so weighted pulled the
+teddy forward-backward-forward run off by several degrees (docs/results.md, "Mono loops, session 6").
+The loop's residuals are therefore split along ``u = X_i / |X_i|`` (the ray from submap i's origin) and
+across it: ``sigma_ray`` = RMS of the along-ray parts, ``sigma_perp`` = RMS per axis of the across
+parts, both floored like the isotropic sigma, for :mod:`gsslam.factors.loop_rays`; with these per-axis
+sigmas a loop the graph meets within its own noise has chi-square ~3N, and a DCS kernel
+(``loop.mono_dcs_phi`` x 3N) lowers the weight of a loop the graph cannot meet so.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,3 +54,33 @@ def loop_point_sigma(loop: LoopConstraint, mode: str, cfg: LoopConfig) -> float 
     if mode != "mono" or not cfg.mono_sigma_from_residual:
         return None
     return float(max(inlier_rms(loop), cfg.mono_sigma_min_rel * loop.threshold))
+
+
+@dataclass(frozen=True)
+class LoopWeight:
+    """How a mono loop enters the graph: ``sigma`` (along the ray, or isotropic when ``sigma_perp`` is
+    None) and ``sigma_perp`` (across the ray, per axis), submap-i units; ``dcs_phi`` its kernel (0: none)."""
+
+    sigma: float
+    sigma_perp: float | None = None
+    dcs_phi: float = 0.0
+
+
+def ray_sigmas(loop: LoopConstraint) -> tuple[float, float]:
+    """(RMS of the residuals ``X_i - T_i_m X_m`` along ``X_i``'s rays, RMS per axis across them)."""
+    d = loop.X_i - transform_points(loop.T_i_m, loop.X_m)  # [N, 3]
+    u = loop.X_i / np.maximum(np.linalg.norm(loop.X_i, axis=1, keepdims=True), 1e-12)  # [N, 3]
+    along = np.sum(d * u, axis=1)  # [N]
+    across = d - along[:, None] * u  # [N, 3], 2 dof per point
+    return float(np.sqrt(np.mean(along**2))), float(np.sqrt(np.mean(np.sum(across**2, axis=1)) / 2))
+
+
+def loop_weight(loop: LoopConstraint, mode: str, cfg: LoopConfig) -> LoopWeight | None:
+    """Mono: the loop's weight in submap-i units (``loop.mono_sigma_ray``: along / across the rays with
+    a DCS kernel; else :func:`loop_point_sigma`). None: RGB-D, or the old world-unit factor."""
+    sigma = loop_point_sigma(loop, mode, cfg)
+    if sigma is None or not cfg.mono_sigma_ray:
+        return None if sigma is None else LoopWeight(sigma)
+    floor = cfg.mono_sigma_min_rel * loop.threshold
+    s_ray, s_perp = ray_sigmas(loop)
+    return LoopWeight(max(s_ray, floor), max(s_perp, floor), cfg.mono_dcs_phi)

@@ -6,7 +6,8 @@ After submap ``i`` has been added to its chain's graph and the graph updated
 1. the loop detector of the chain registers the submap (compact record: points, tiny images, ORB);
 2. ``detect(i, poses)`` against the graph's current ``T_world_local`` returns verified loops that
    passed the drift gate; each goes into the graph as one point factor (``SubmapGraph.add_loop``;
-   mono: in submap-i units, sigma from the loop's own inlier residual, :mod:`gsslam.loop.weights`);
+   mono: in submap-i units, noise along / across the rays from the loop's own inlier residual and a
+   DCS kernel, :mod:`gsslam.loop.weights`);
 3. one iSAM2 update; ``check_loops`` names loops the optimised graph could not satisfy or that
    conflict with the others; they are removed and the graph updated again
    (``update(extra_iterations=10)``);
@@ -84,12 +85,19 @@ class LoopStage:
         new = det.detect(sid, poses)
         if not new:
             return False
-        from gsslam.loop.weights import loop_point_sigma
+        from gsslam.loop.weights import loop_weight
 
         loops = self._loops[cid]
         for lc in new:  # mono: each loop weighs by its own inlier residual (loop/weights.py)
-            sigma = loop_point_sigma(lc, self.mode, self.cfg)  # submap-i units (mono) or None
-            loops[graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m, sigma=sigma, local_units=sigma is not None)] = lc
+            w = loop_weight(lc, self.mode, self.cfg)  # submap-i units (mono) or None (RGB-D)
+            if w is None:
+                h_ = graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m)
+            else:
+                h_ = graph.add_loop(
+                    lc.i, lc.m, lc.X_i, lc.X_m, sigma=w.sigma, local_units=True, sigma_perp=w.sigma_perp,
+                    dcs_phi=w.dcs_phi,
+                )  # fmt: skip
+            loops[h_] = lc
         graph.update()
         poses = {k: graph.submap_pose(k) for k in range(graph.num_submaps)}
         bad = det.check_loops(loops, poses)

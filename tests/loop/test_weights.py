@@ -10,7 +10,7 @@ from gsslam.config import GraphConfig, LoopConfig
 from gsslam.geometry import make_T, so3_exp, umeyama
 from gsslam.graph.submap_graph import SubmapGraph
 from gsslam.loop import LoopConstraint
-from gsslam.loop.weights import inlier_rms, loop_point_sigma
+from gsslam.loop.weights import inlier_rms, loop_point_sigma, loop_weight, ray_sigmas
 from helpers.submap_chain import ate, loop_points, make_chain
 
 
@@ -68,10 +68,10 @@ def test_mono_loop_weighted_by_its_residual_corrects_scale_drift():
 
 
 def test_loop_stage_adds_mono_loops_with_their_residual_sigma(revisit_mono):
-    """The pipeline's loop stage hands each mono loop to the graph with its own sigma."""
+    """The pipeline's loop stage hands each mono loop to the graph with its own sigmas, along and across
+    the rays (session 6), in submap-i units."""
     from types import SimpleNamespace
 
-    from gsslam.graph.keys import submap_key
     from gsslam.slam.loop_stage import LoopStage
 
     sm = revisit_mono[0]
@@ -83,10 +83,135 @@ def test_loop_stage_adds_mono_loops_with_their_residual_sigma(revisit_mono):
         graph.update()
         frames = [SimpleNamespace(index=f, gray=g) for f, g in zip(enc.frame_indices, img)]
         stage.after_submap(chain, 0, s, enc, frames)
-    loops = [op[2] for op in graph.backend.replay_log() if op[0] == "factor" and op[2][0] == "relative_point"]
+    loops = [op[2] for op in graph.backend.replay_log() if op[0] == "factor" and op[2][0] == "ray_point"]
     assert loops, "the revisit closes at least one loop, in submap-i units"
     assert not [op for op in graph.backend.replay_log() if op[0] == "factor" and op[2][0] == "point"
                 and op[2][1][0] > op[2][1][1]]  # fmt: skip  # no world-unit loop (add_loop(i, m): i > m)
-    for _, (_key_i, _key_m, X_i, X_m, sigma), _ in loops:
-        rms = inlier_rms(LoopConstraint(1, 0, X_i, X_m, umeyama(X_m, X_i, with_scale=True), 1.0, 1.0, 1.0))
-        assert np.isclose(sigma, rms, rtol=1e-6)  # the floor (0.25 x 2 % of depth) is not active here
+    for _, (_key_i, _key_m, X_i, X_m, sigma, sigma_perp), kw in loops:
+        lc = LoopConstraint(1, 0, X_i, X_m, umeyama(X_m, X_i, with_scale=True), 1.0, 1.0, 1.0)
+        s_ray, s_perp = ray_sigmas(lc)
+        # each is its residual RMS or the common floor (0.25 x 2 % of depth; active across the rays here)
+        assert np.isclose(sigma, s_ray, rtol=1e-6) or (sigma > s_ray and np.isclose(sigma, sigma_perp))
+        assert np.isclose(sigma_perp, s_perp, rtol=1e-6) or sigma_perp > s_perp
+        assert kw["dcs_phi"] == LoopConfig().mono_dcs_phi
+
+
+# --- session 6: noise along / across the rays, and a DCS kernel per loop ---
+
+
+def _ray_loop(rng, n=300, sigma_ray=0.03, sigma_perp=0.005, thr=0.015):
+    """A loop whose X_i carry depth noise along their rays and pixel noise across them."""
+    T = make_T(so3_exp(np.array([0.05, -0.1, 0.02])), np.array([0.2, 0.0, -0.3]), 1.2)
+    X_m = rng.uniform([-1.5, -1, 2], [1.5, 1, 5], (n, 3))
+    X_i = X_m @ T[:3, :3].T + T[:3, 3]
+    u = X_i / np.linalg.norm(X_i, axis=1, keepdims=True)
+    perp = rng.standard_normal((n, 3)) * sigma_perp
+    perp -= np.sum(perp * u, axis=1, keepdims=True) * u
+    X_i = X_i + sigma_ray * rng.standard_normal((n, 1)) * u + perp
+    return LoopConstraint(3, 0, X_i, X_m, umeyama(X_m, X_i, with_scale=True), 0.5, 0.8, thr), T
+
+
+def test_ray_sigmas_split_depth_from_pixel_error():
+    rng = np.random.default_rng(5)
+    lc, _ = _ray_loop(rng)
+    s_ray, s_perp = ray_sigmas(lc)
+    assert 0.026 < s_ray < 0.034 and 0.0042 < s_perp < 0.0058  # drawn 0.03 / 0.005
+    cfg = LoopConfig()
+    w = loop_weight(lc, "mono", cfg)
+    assert w.sigma_perp is not None and w.dcs_phi == cfg.mono_dcs_phi
+    assert np.isclose(w.sigma, s_ray) and np.isclose(w.sigma_perp, s_perp)
+    iso = loop_weight(lc, "mono", dataclasses.replace(cfg, mono_sigma_ray=False))
+    assert iso.sigma_perp is None and np.isclose(iso.sigma, inlier_rms(lc))  # session 5's weight
+    assert loop_weight(lc, "rgbd", cfg) is None
+    assert loop_weight(lc, "mono", dataclasses.replace(cfg, mono_sigma_from_residual=False)) is None
+    floor = loop_weight(lc, "mono", dataclasses.replace(cfg, mono_sigma_min_rel=2.5))  # 0.0375 > both sigmas
+    assert np.isclose(floor.sigma, 0.0375) and np.isclose(floor.sigma_perp, 0.0375)
+
+
+def _fit_loop(lc, w) -> np.ndarray:
+    """T_i_m recovered by the graph from the loop alone (submap m held at the identity)."""
+    import gtsam
+    from gtsam.symbol_shorthand import S
+
+    from gsslam.factors import make_ray_point_factor, make_relative_point_factor, to_gtsam, to_matrix
+
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.PriorFactorSimilarity3(S(0), gtsam.Similarity3(), gtsam.noiseModel.Isotropic.Sigma(7, 1e-6)))
+    T_m_i = np.linalg.inv(lc.T_i_m)
+    if w.sigma_perp is None:
+        g.add(make_relative_point_factor(S(1), S(0), lc.X_i, lc.X_m, w.sigma))
+    else:
+        g.add(make_ray_point_factor(S(1), S(0), lc.X_i, lc.X_m, w.sigma, w.sigma_perp))
+    v = gtsam.Values()
+    v.insert(S(0), gtsam.Similarity3())
+    v.insert(S(1), to_gtsam(T_m_i, "sim3"))
+    out = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
+    return np.linalg.inv(to_matrix(out.atSimilarity3(S(1))))  # T_i_m
+
+
+def _rot_err_deg(T, T_true) -> float:
+    R = T[:3, :3] / np.cbrt(np.linalg.det(T[:3, :3]))
+    Rt = T_true[:3, :3] / np.cbrt(np.linalg.det(T_true[:3, :3]))
+    return float(np.degrees(np.arccos(np.clip((np.trace(R.T @ Rt) - 1) / 2, -1, 1))))
+
+
+def test_ray_noise_resists_a_depth_distortion():
+    """A smooth depth error of the point map (depth x (1 + 0.06 x/z), a tilt) moves points along their
+    rays: the isotropic weight tilts the loop's rotation with it, the ray weight less (its sigmas come
+    from the residuals of the isotropic fit, which carry part of the tilt across the rays)."""
+    rng = np.random.default_rng(6)
+    lc, T = _ray_loop(rng, sigma_ray=0.01, sigma_perp=0.003)
+    X_i = lc.X_i * (1 + 0.06 * lc.X_i[:, :1] / lc.X_i[:, 2:3])  # along each ray
+    lc = dataclasses.replace(lc, X_i=X_i, T_i_m=umeyama(lc.X_m, X_i, with_scale=True))
+    cfg = LoopConfig()
+    iso = loop_weight(lc, "mono", dataclasses.replace(cfg, mono_sigma_ray=False))
+    err_iso = _rot_err_deg(_fit_loop(lc, iso), T)
+    err_ray = _rot_err_deg(_fit_loop(lc, loop_weight(lc, "mono", cfg)), T)
+    assert err_iso > 1.5  # measured: 1.98 deg
+    assert err_ray < 0.85 * err_iso  # measured: 1.54 deg
+
+
+def test_dcs_down_weights_a_wrong_loop_not_a_good_one():
+    """Two loops between the same submaps, one wrong (its points turned 4 deg about their centre), the
+    estimate starting at the truth (where the chain puts it). Without a kernel the graph settles between
+    them; with DCS (Phi = 3N) the wrong loop ends with a small weight, the good one with full weight."""
+    import gtsam
+    from gtsam.symbol_shorthand import S
+
+    from gsslam.factors import make_ray_point_factor, to_gtsam, to_matrix
+
+    rng = np.random.default_rng(7)
+    good, T = _ray_loop(rng, n=200, sigma_ray=0.01, sigma_perp=0.003)
+    bad, _ = _ray_loop(rng, n=200, sigma_ray=0.01, sigma_perp=0.003)
+    c = bad.X_i.mean(0)
+    X_i = (bad.X_i - c) @ so3_exp(np.array([0.0, np.radians(4.0), 0.0])).T + c
+    bad = dataclasses.replace(bad, X_i=X_i, T_i_m=umeyama(bad.X_m, X_i, with_scale=True))
+
+    def solve(phi):
+        g = gtsam.NonlinearFactorGraph()
+        pin = gtsam.noiseModel.Isotropic.Sigma(7, 1e-6)
+        g.add(gtsam.PriorFactorSimilarity3(S(0), gtsam.Similarity3(), pin))
+        fs = []
+        for lc in (good, bad):
+            w = loop_weight(lc, "mono", dataclasses.replace(LoopConfig(), mono_dcs_phi=phi))
+            fs.append(
+                make_ray_point_factor(S(1), S(0), lc.X_i, lc.X_m, w.sigma, w.sigma_perp, dcs_phi=w.dcs_phi)
+            )
+            g.add(fs[-1])
+        v = gtsam.Values()
+        v.insert(S(0), gtsam.Similarity3())
+        v.insert(S(1), to_gtsam(np.linalg.inv(T), "sim3"))  # the truth: T_m_i
+        out = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
+        weights = [
+            gtsam.noiseModel.mEstimator.DCS.Create(3 * len(lc.X_i)).weight(
+                np.linalg.norm(f.unwhitenedError(out))
+            )
+            for f, lc in zip(fs, (good, bad))
+        ]
+        return _rot_err_deg(np.linalg.inv(to_matrix(out.atSimilarity3(S(1)))), T), weights
+
+    err_plain, _ = solve(0.0)
+    err_dcs, (w_good, w_bad) = solve(1.0)
+    assert w_good > 0.9  # measured: 1.0
+    assert w_bad < 0.2  # measured: 0.0002
+    assert err_dcs < 0.3 * err_plain  # measured: 0.02 vs 1.95 deg

@@ -18,6 +18,9 @@ SEQ = {
     "synth800": ("synthetic", str(Path(__file__).with_name("synth800.yaml")), {}),
     "fbf": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)),
+    # the tracking suite's teddy200_fbf mono row: the playback opened as the runner opens it (with depth: 640 frames)
+    "fbfs": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)),
     "teddy200": ("tum", "../shared/data/rgbd_dataset_freiburg3_teddy", {}),
 }
 
@@ -39,7 +42,7 @@ def main():
     logging.getLogger("gsslam.loop").setLevel(logging.INFO); logging.getLogger("gsslam.slam.loop_stage").setLevel(logging.INFO)
     dsname, path, kw = SEQ[a.seq]
     kw = dict(kw)
-    if a.mode == "mono" and dsname in ("tum", "playback"):
+    if a.mode == "mono" and dsname in ("tum", "playback") and a.seq != "fbfs":
         kw.setdefault("with_depth", False)
     ds = open_dataset(dsname, path, **kw)
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={'true' if a.loops=='on' else 'false'}", *a.set], mode=a.mode)

@@ -1,5 +1,6 @@
 """Replay a run's graph log with the loop factors modified; keyframe ATE before/after batch."""
 import pickle, sys, numpy as np
+import gtsam
 from gsslam.config import load_config
 from gsslam.graph.backend import Backend
 from gsslam.graph.factor_specs import build_factor
@@ -10,6 +11,8 @@ from gsslam.types import Trajectory
 
 def is_loop(sp):
     kind, args, kw = sp
+    if kind in ("relative_point", "ray_point"):  # only loops use them (mono, loop.mono_sigma_from_residual)
+        return True
     if kind != "point":
         return False
     return int(args[0]) > int(args[1])  # add_loop(i, m) with i > m; adjacency is (i-1, i)
@@ -40,10 +43,13 @@ def replay(st, loop_map=lambda sp: sp, overrides=(), batch=True, other_map=lambd
                 sp = loop_map(sp)
                 if sp is None:  # keep the handle numbering: a loop of no weight
                     k, a, kw = op[2]
-                    sp = (k, (*a[:4], 1e6), kw)
+                    sp = (k, (*a[:4], *([1e6] * (len(a) - 4))), kw)
             else:
                 sp = other_map(sp)
-            be.add_factor(build_factor(sp), op[1], spec=sp)
+            if isinstance(sp, gtsam.NonlinearFactor):  # a loop_map may build its own factor
+                be.add_factor(sp, op[1])
+            else:
+                be.add_factor(build_factor(sp), op[1], spec=sp)
         elif op[0] == "value":
             be.add_value(int(op[1]), to_gtsam(op[2], "sim3"))
         elif op[0] == "remove":

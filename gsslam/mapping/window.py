@@ -16,6 +16,7 @@ from collections.abc import Callable
 import torch
 
 from gsslam.mapping import losses as L
+from gsslam.mapping.adam import Adam
 from gsslam.mapping.keyframes import Keyframe, torch_threads
 from gsslam.mapping.levels import camera_matrix, coarse_intrinsics, coarse_keyframe
 from gsslam.mapping.pose_refine import pose_loss
@@ -109,7 +110,7 @@ def adam_steps(
         kfs[i].delta = kfs[i].delta.detach().clone().requires_grad_(True)
     if pose_kfs:
         groups.append({"params": [kfs[i].delta for i in pose_kfs], "lr": lr_pose or cfg.lr_pose})
-    opt = torch.optim.Adam(groups, eps=1e-15)
+    opt = Adam(groups, eps=1e-15)  # torch.optim.Adam's arithmetic, without importing torch._dynamo
     base = [g["lr"] for g in opt.param_groups]
     gamma = decay ** (1.0 / max(1, iters - 1))
     first = last = None

@@ -201,6 +201,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "pipeline.pose_outlier_max_dev_m": NONNEG,
     "pipeline.pose_outlier_max_dev_deg": NONNEG,
     "run.checkpoint_every": _ge(0),
+    "run.native_eval_keyframes": _ge(0),
+    "run.native_eval_held_out": _ge(0),
 }
 
 

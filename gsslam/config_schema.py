@@ -218,6 +218,8 @@ class PipelineConfig:
 @dataclass(frozen=True)
 class RunConfig:
     checkpoint_every: int = 5  # submaps between checkpoints (docs/run_folders.md); 0: none, not on signals
+    native_eval_keyframes: int = 12  # map PSNR/SSIM at the input resolution on at most this many keyframes, evenly spaced (0: none; docs/evaluation.md)
+    native_eval_held_out: int = 12  # ... and on at most this many of the held-out frames, evenly spaced (0: none)
 
 
 @dataclass(frozen=True)

@@ -105,6 +105,14 @@ def test_mapped_run_writes_map_renders_and_metrics(mapped_run):
     assert mp["psnr_other"] > 23.0 and mp["n_other"] >= 15
     assert (mp["native_width"], mp["native_height"]) == (640, 480)
     assert 15.0 < mp["psnr_keyframes_native"] < mp["psnr_keyframes"]  # 80 px map, 640 px images
+    # the input-resolution scores are the means over the frames the metrics name (12 + 12 at most)
+    named = mp["native_frames"]
+    assert len(named["keyframes"]) == mp["n_keyframes_native"] == min(12, mp["n_keyframes"])
+    assert len(named["held_out"]) == mp["n_other_native"] == min(12, mp["n_other"])
+    per = mp["per_frame_psnr_native"]
+    assert sorted(per) == sorted(str(i) for i in named["keyframes"] + named["held_out"])
+    assert mp["psnr_keyframes_native"] == pytest.approx(np.mean([per[str(i)] for i in named["keyframes"]]))
+    assert mp["psnr_other_native"] == pytest.approx(np.mean([per[str(i)] for i in named["held_out"]]))
     assert not mp["final_capped"] and mp["final_visits_min"] == mp["final_visits_max"] == 5
     assert mp["depth_prior_factors"] == 0  # depth_feedback is off by default
     assert mp["rasterizer_backend"] == ("c" if rasterize_cpu.available(torch.zeros(1)) else "torch")

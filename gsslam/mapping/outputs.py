@@ -36,6 +36,20 @@ def ssim_float32(a: np.ndarray, b: np.ndarray) -> float:  # a, b [H, W, 3] in [0
         return float(ssim_torch(ta, tb))
 
 
+def evenly_spaced(items: list[int], n: int) -> list[int]:
+    """At most ``n`` of ``items``, evenly spaced over the list (first and last kept; all if ``n`` >= len).
+
+    The fixed, reproducible sample of frames the map's input-resolution evaluation scores (issue #17).
+    """
+    if n <= 0 or not items:
+        return []
+    if len(items) <= n:
+        return list(items)
+    if n == 1:
+        return [items[0]]
+    return [items[int(k)] for k in np.linspace(0, len(items) - 1, n)]
+
+
 def depth_colormap(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [H, W], [H, W] -> [H, W, 3] BGR
     """Turbo colour map over the 2nd..98th percentile of the valid depths; black elsewhere."""
     lo, hi = np.percentile(depth[valid], [2, 98]) if valid.any() else (0.0, 1.0)
@@ -60,10 +74,11 @@ def evaluate_map(
     ``psnr_keyframes_native``, ... (what papers report). ``frames`` is consumed one at a time (a
     generator keeps memory flat); ``progress(k)`` after the k-th frame. ``native_only``: the frames
     evaluated at the input resolution too (default all; a 640x480 render costs ~16x a 160x120 one).
+    ``per_frame_psnr`` / ``per_frame_psnr_native``: frame index -> PSNR at each resolution.
     """
     w, h = state.intrinsics.width, state.intrinsics.height
     res: dict[str, list] = {"keyframes": [], "other": [], "keyframes_native": [], "other_native": []}
-    per_frame = {}
+    per_frame, per_frame_native = {}, {}
     for k, fr in enumerate(frames):
         if fr.index in poses:
             kind = "keyframes" if fr.index in state.keyframes else "other"
@@ -76,12 +91,16 @@ def evaluate_map(
             if native is not None and (native_only is None or fr.index in native_only):
                 ren = render_pose(state, poses[fr.index], native).color.clamp(0, 1).cpu().numpy()
                 img = _resize_image(image, native.width, native.height)
-                res[kind + "_native"].append((psnr(ren, img), ssim_float32(ren, img)))
+                p_native = psnr(ren, img)
+                per_frame_native[fr.index] = p_native
+                res[kind + "_native"].append((p_native, ssim_float32(ren, img)))
         if progress is not None:
             progress(k + 1)
     stats: dict = {"per_frame_psnr": per_frame, "width": w, "height": h}
     if native is not None:
-        stats.update(native_width=native.width, native_height=native.height)
+        stats.update(
+            native_width=native.width, native_height=native.height, per_frame_psnr_native=per_frame_native
+        )
     for key, vals in res.items():
         if key.endswith("_native") and native is None:
             continue

@@ -13,6 +13,7 @@ import torch
 
 from gsslam.config import MapperConfig
 from gsslam.mapping import losses as L
+from gsslam.mapping.adam import Adam
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.rasterize import RenderOutput
 from gsslam.mapping.state import MapState, render
@@ -54,7 +55,7 @@ def refine_pose(state: MapState, kf: Keyframe, iterations: int) -> float:
     cfg = state.cfg
     start = kf.delta.detach().clone()
     kf.delta = start.clone().requires_grad_(True)
-    opt = torch.optim.Adam([kf.delta], lr=cfg.lr_pose_init)
+    opt = Adam([{"params": [kf.delta], "lr": cfg.lr_pose_init}])
     m = state.model.detached()
     first = best = value = float("nan")
     best_delta = start

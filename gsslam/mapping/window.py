@@ -16,6 +16,7 @@ from collections.abc import Callable
 import torch
 
 from gsslam.mapping import losses as L
+from gsslam.mapping.adam import Adam
 from gsslam.mapping.keyframes import Keyframe, torch_threads
 from gsslam.mapping.levels import camera_matrix, coarse_intrinsics, coarse_keyframe
 from gsslam.mapping.pose_refine import pose_loss
@@ -109,7 +110,7 @@ def adam_steps(
         kfs[i].delta = kfs[i].delta.detach().clone().requires_grad_(True)
     if pose_kfs:
         groups.append({"params": [kfs[i].delta for i in pose_kfs], "lr": lr_pose or cfg.lr_pose})
-    opt = torch.optim.Adam(groups, eps=1e-15)
+    opt = Adam(groups, eps=1e-15)  # torch.optim.Adam's arithmetic, without importing torch._dynamo
     base = [g["lr"] for g in opt.param_groups]
     gamma = decay ** (1.0 / max(1, iters - 1))
     first = last = None
@@ -173,12 +174,12 @@ def step_loss(
         loss = loss + pose_loss(cfg, out, kf, prior_weight=pose_prior_weight)
     # GaussianFlow: projected motion of the Gaussians vs measured flow, for pairs starting here
     err = None
+    vis = None if coarse else visible(out)  # [N] bool, once per step (flow weights, error, radii)
     for (a, b), (flow, valid) in state.flows.items():
         if a != kf.index or b not in win or w_flow <= 0:
             continue
         kb = state.keyframes[b]
         uv_b = project(state.K, m.means, kb.T_cam_world(dev, with_delta=b in win and kb.delta.requires_grad))
-        vis = visible(out)
         fl, e, _ = L.flow_loss(
             out.means2d,
             uv_b,
@@ -195,11 +196,10 @@ def step_loss(
         return loss, float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
     with torch.no_grad():
         if err is None:  # photometric analogue of the normalized error, at the Gaussians' pixels
-            vis = visible(out)
             diff = (out.color - kf.image).abs().mean(-1) / (kf.image.mean(-1) + 0.1)
             e = L.sample_image(diff[..., None], out.means2d.detach())[:, 0]
             err = torch.where(vis, e, torch.full_like(e, float("nan")))
-        radius = torch.where(visible(out), out.radii.float(), torch.zeros_like(err))
+        radius = torch.where(vis, out.radii.float(), torch.zeros_like(err))
         state.strategy.update_state(state.densify_state, err, radius)
         psnr_val = float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
     return loss, psnr_val

@@ -220,9 +220,13 @@ def write_map_outputs(
     """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
 
     PSNR / SSIM on every mapper keyframe and on up to ``max_held_out`` non-keyframes spread over the
-    run (held out: never seen by the mapper), with their final poses, at the mapper resolution and at
-    the input's (``*_native``; on at most ``max_held_out`` keyframes spread over the run, as its renders
-    cost ~16x more). Frames are read one at a time, so memory does not grow with the run.
+    run (held out: never seen by the mapper), with their final poses, at the mapper resolution; at the
+    input's (``*_native``, renders ~16x the pixels) on a fixed sample: at most
+    ``run.native_eval_keyframes`` keyframes and ``run.native_eval_held_out`` of those held-out frames,
+    evenly spaced (:func:`gsslam.mapping.outputs.evenly_spaced`). The metrics name the sample
+    (``native_frames``), its size (``n_keyframes_native``, ``n_other_native``) and each frame's native
+    PSNR (``per_frame_psnr_native``): the native scores are the means over exactly those frames.
+    Frames are read one at a time, so memory does not grow with the run.
     ``renders/worst_<frame>_<psnr>dB.png``: the ``panels_worst`` keyframes whose renders score lowest,
     input | render | depth at the input resolution.
     """
@@ -246,16 +250,21 @@ def write_map_outputs(
         if progress is not None:
             progress("outputs: map metrics", k, len(todo))
 
-    native_kfs = (
-        kfs if len(kfs) <= max_held_out else [kfs[int(k)] for k in np.linspace(0, len(kfs) - 1, max_held_out)]
-    )
-    native_only = set(native_kfs) | set(others)
+    from gsslam.mapping.outputs import evenly_spaced
+
+    native_kfs = evenly_spaced(kfs, pipe.cfg.run.native_eval_keyframes)
+    native_others = evenly_spaced(others, pipe.cfg.run.native_eval_held_out)
+    native_only = set(native_kfs) | set(native_others)
     ev = (
         mapper.evaluate((ds[i] for i in todo), poses, native=True, progress=tick, native_only=native_only)
         if todo
         else {}
     )
     per_frame = ev.pop("per_frame_psnr", {})
+    if todo:
+        ev["native_frames"] = {"keyframes": native_kfs, "held_out": native_others}
+        native_psnr = sorted(ev.get("per_frame_psnr_native", {}).items())
+        ev["per_frame_psnr_native"] = {str(i): float(p) for i, p in native_psnr}
     worst = sorted((p, i) for i, p in per_frame.items() if i in set(kfs))[:panels_worst]
     for p, i in worst:  # where the map is weak, at the input's resolution
         mapper.native_panel(ds[i], poses[i], out / "renders" / f"worst_{i:06d}_{p:.1f}dB.png")

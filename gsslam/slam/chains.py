@@ -53,3 +53,16 @@ class Chain:
     def world_pose(self, T_chain_cam: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4] rigid
         """A camera pose of this chain's graph as a rigid ``T_world_cam`` in the output world."""
         return compose_rigid(self.T_world_chain, T_chain_cam)
+
+
+def pack_submap(enc: SubmapEncoding, keyframes: dict[int, ChainKeyframe], added: list[int]) -> None:
+    """Keep a submap that all stages have seen compact (:meth:`SubmapEncoding.pack`, exact).
+
+    The keyframes it gave a depth to then share that depth with it instead of holding a copy: a run's
+    memory grows by what one keyframe keeps (docs/pipeline.md, "Memory").
+    """
+    if not enc.pack():
+        return
+    for idx in added:
+        kf = keyframes[idx]
+        kf.depth = enc.depths[kf.position]  # [h, w] contiguous, the same values

@@ -66,3 +66,13 @@ def pack_submap(enc: SubmapEncoding, keyframes: dict[int, ChainKeyframe], added:
     for idx in added:
         kf = keyframes[idx]
         kf.depth = enc.depths[kf.position]  # [h, w] contiguous, the same values
+
+
+def stored_nbytes(chains: list[Chain], keyframes: dict[int, ChainKeyframe]) -> int:
+    """Bytes held by the submaps' point maps and confidences and by the keyframe depths.
+
+    A keyframe depth that is a view of its submap's packed depths adds nothing; what a run keeps per
+    keyframe is this number's growth (tests/slam/test_memory.py).
+    """
+    total = sum(enc.nbytes for chain in chains for enc in chain.encodings)
+    return total + sum(kf.depth.nbytes for kf in keyframes.values() if kf.depth.base is None)

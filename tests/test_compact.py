@@ -24,7 +24,9 @@ def _rgbd_encoding(rng, n=3) -> SubmapEncoding:
     """As the RGB-D encoder makes them: back-projected depth, confidence in {0, 0.3, 1}."""
     z = _depths(rng, n)
     conf = np.where(np.isfinite(z), np.where(rng.random(z.shape) < 0.1, 0.3, 1.0), 0.0).astype(np.float32)
-    return SubmapEncoding(list(range(n)), np.tile(np.eye(4), (n, 1, 1)), points_from_depth(INTR.K, z), conf, INTR)
+    return SubmapEncoding(
+        list(range(n)), np.tile(np.eye(4), (n, 1, 1)), points_from_depth(INTR.K, z), conf, INTR
+    )
 
 
 def test_points_pack_to_depth_and_back_bit_for_bit():

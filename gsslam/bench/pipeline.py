@@ -215,7 +215,7 @@ def _one_length(
         "final pass": st.get("final pass", 0.0),
         "outputs": total - m["wall_time_s"],
     }
-    ck = (m.get("checkpoints") or {})
+    ck = m.get("checkpoints") or {}
     row = {
         "frames": m["frames"],
         "keyframes": m["keyframes"],

@@ -141,7 +141,12 @@ class StateEncoder:
         if not isinstance(base, np.ndarray) or id(base) not in self._whole or base.dtype != a.dtype:
             return None
         offset = a.__array_interface__["data"][0] - base.__array_interface__["data"][0]
-        return {"of": self._memo[id(base)], "offset": offset, "shape": list(a.shape), "strides": list(a.strides)}
+        return {
+            "of": self._memo[id(base)],
+            "offset": offset,
+            "shape": list(a.shape),
+            "strides": list(a.strides),
+        }
 
     def _array(self, a: np.ndarray, path: str) -> str:
         if a.dtype.hasobject:

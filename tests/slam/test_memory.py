@@ -49,7 +49,9 @@ def test_packing_changes_no_pose(monkeypatch):
     packed, _ = _run(30, ())
     monkeypatch.setattr(SubmapEncoding, "pack", lambda self: False)
     whole, _ = _run(30, ())
-    assert all(e.nbytes == e.points_cam.nbytes + e.confidence.nbytes for c in whole.chains for e in c.encodings)
+    assert all(
+        e.nbytes == e.points_cam.nbytes + e.confidence.nbytes for c in whole.chains for e in c.encodings
+    )
     a, b = packed.frame_poses(), whole.frame_poses()
     assert a.keys() == b.keys() and len(a) == 30
     assert all(np.array_equal(a[i], b[i]) for i in a)  # bit for bit

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gsslam.compact import CodedField, PointMapField
 from gsslam.errors import GsslamError
 
 StageProgress = Callable[[str, int, int], None]
@@ -256,6 +257,9 @@ class Trajectory:
         return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
 
 
+_POINTS, _CONFIDENCE = PointMapField(), CodedField()  # SubmapEncoding's packable fields
+
+
 @dataclass
 class SubmapEncoding:
     """What a submap encoder produces for K+1 keyframes (SING3R's Sub-Track3R output).
@@ -270,12 +274,16 @@ class SubmapEncoding:
       (NaN where unknown), at the resolution of ``intrinsics``.
     - ``confidence``: [K+1, h, w] in [0, 1] (0 where unknown).
     - ``intrinsics``: intrinsics at the point maps' resolution.
+
+    :meth:`pack` keeps ``points_cam`` as its depths and ``confidence`` as uint8 codes where that is
+    exact (:mod:`gsslam.compact`); reading them then builds the same arrays anew each time (so
+    write into a copy, never into them; :attr:`depths` stays a view of what is stored).
     """
 
     frame_indices: list[int]
     T_local_cam: np.ndarray
-    points_cam: np.ndarray
-    confidence: np.ndarray
+    points_cam: np.ndarray = _POINTS  # type: ignore[assignment]
+    confidence: np.ndarray = _CONFIDENCE  # type: ignore[assignment]
     intrinsics: CameraIntrinsics
     meta: dict = field(default_factory=dict)
 
@@ -290,7 +298,17 @@ class SubmapEncoding:
 
     @property
     def depths(self) -> np.ndarray:  # [K+1, h, w] z in local units (NaN unknown)
-        return self.points_cam[..., 2]
+        return _POINTS.depth(self)  # no copy: the stored Z, or a view of the whole point maps
+
+    def pack(self) -> bool:
+        """Keep the point maps and confidences compact where that is exact; True when both are packed."""
+        points = _POINTS.pack(self)
+        return _CONFIDENCE.pack(self) and points
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the point maps and confidences as stored."""
+        return _POINTS.nbytes(self) + _CONFIDENCE.nbytes(self)
 
 
 @dataclass

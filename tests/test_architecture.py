@@ -141,7 +141,7 @@ FORBIDDEN = {
     "run": {*CLI, "bench", "__main__"},
     **{cli: {"slam", "frontend", "graph", "mapping", "loop", "datasets"} for cli in CLI},  # through run/
     **{base: {"slam", "run", *CLI, "bench", "frontend", "graph", "mapping", "loop", "datasets", "viz"}
-       for base in ("config", "config_schema", "config_ranges", "types", "geometry", "imaging", "errors")},
+       for base in ("config", "config_schema", "config_ranges", "types", "compact", "geometry", "imaging", "errors")},
 }  # fmt: skip
 PURE = {
     "eval": {"eval", "types", "geometry", "imaging", "errors"},

@@ -5,7 +5,8 @@ No pickle: :class:`StateEncoder` turns an object graph into a JSON tree plus nam
 types, looked up by name; nothing is imported or called by name from the file). Supported:
 
 - ``None``, bool, int, float, str, numpy scalars; list, tuple, dict (any supported keys), set;
-- numpy arrays (not of dtype object) and torch tensors (stored as numpy; dtype, device,
+- numpy arrays (not of dtype object; a view of an array stored before is stored as its place in
+  that array, so it is a view again after loading) and torch tensors (stored as numpy; dtype, device,
   ``requires_grad`` and ``nn.Parameter`` kept), ``torch.device``;
 - ``numpy.random.Generator`` (PCG64 state) and ``torch.Generator`` (its state tensor);
 - ``gtsam.Pose3`` / ``gtsam.Similarity3`` (rotation matrix, translation, scale as JSON floats: exact);
@@ -57,6 +58,7 @@ class StateEncoder:
         self.arrays: dict[str, np.ndarray] = {}
         self._memo: dict[int, int] = {}  # id(obj) -> reference number
         self._keep: list[Any] = []  # keeps encoded objects alive so that ids stay unique
+        self._whole: set[int] = set()  # ids of the arrays stored with their data (views refer to them)
         self.resources: dict[int, str] = {}  # id(resource) -> attribute path where first met
 
     def encode(self, o: Any, path: str = "root") -> Any:
@@ -93,6 +95,10 @@ class StateEncoder:
                 "v": [self.encode(v, f"{path}<item>") for v in sorted(o, key=repr)],
             }
         if isinstance(o, np.ndarray):
+            view = self._view(o)
+            if view is not None:  # a view of an array stored before: stored as where it looks
+                return {"$": "view", "id": ref, **view}
+            self._whole.add(id(o))
             u8, recipe = _as_uint8(o)
             if u8 is not None:  # an 8-bit image as float: stored as its bytes (exact, 4x smaller)
                 return {"$": "nd", "id": ref, "a": self._array(u8, path), "u8": recipe}
@@ -128,6 +134,19 @@ class StateEncoder:
         self._memo[id(o)] = ref
         self._keep.append(o)
         return ref
+
+    def _view(self, a: np.ndarray) -> dict | None:
+        """``{of, offset, shape, strides}`` when ``a`` views an array stored whole earlier, else None."""
+        base = a.base
+        if not isinstance(base, np.ndarray) or id(base) not in self._whole or base.dtype != a.dtype:
+            return None
+        offset = a.__array_interface__["data"][0] - base.__array_interface__["data"][0]
+        return {
+            "of": self._memo[id(base)],
+            "offset": offset,
+            "shape": list(a.shape),
+            "strides": list(a.strides),
+        }
 
     def _array(self, a: np.ndarray, path: str) -> str:
         if a.dtype.hasobject:
@@ -213,6 +232,12 @@ class StateDecoder:
             a = np.array(self._arr(node["a"]))
             if node.get("u8") is not None:
                 a = _U8_RECIPES[node["u8"]](a)
+            return self._keep(node, a)
+        if kind == "view":
+            base = self._memo[node["of"]]
+            if not isinstance(base, np.ndarray):
+                raise StateCodecError("a stored view does not refer to an array")
+            a = np.ndarray(node["shape"], base.dtype, base, node["offset"], node["strides"])
             return self._keep(node, a)
         if kind == "npgen":
             g = np.random.Generator(np.random.PCG64())

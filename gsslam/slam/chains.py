@@ -53,3 +53,26 @@ class Chain:
     def world_pose(self, T_chain_cam: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4] rigid
         """A camera pose of this chain's graph as a rigid ``T_world_cam`` in the output world."""
         return compose_rigid(self.T_world_chain, T_chain_cam)
+
+
+def pack_submap(enc: SubmapEncoding, keyframes: dict[int, ChainKeyframe], added: list[int]) -> None:
+    """Keep a submap that all stages have seen compact (:meth:`SubmapEncoding.pack`, exact).
+
+    The keyframes it gave a depth to then share that depth with it instead of holding a copy: a run's
+    memory grows by what one keyframe keeps (docs/pipeline.md, "Memory").
+    """
+    if not enc.pack():
+        return
+    for idx in added:
+        kf = keyframes[idx]
+        kf.depth = enc.depths[kf.position]  # [h, w] contiguous, the same values
+
+
+def stored_nbytes(chains: list[Chain], keyframes: dict[int, ChainKeyframe]) -> int:
+    """Bytes held by the submaps' point maps and confidences and by the keyframe depths.
+
+    A keyframe depth that is a view of its submap's packed depths adds nothing; what a run keeps per
+    keyframe is this number's growth (tests/slam/test_memory.py).
+    """
+    total = sum(enc.nbytes for chain in chains for enc in chain.encodings)
+    return total + sum(kf.depth.nbytes for kf in keyframes.values() if kf.depth.base is None)

@@ -41,7 +41,7 @@ from gsslam.frontend.tracking import (
     sample_depth,
 )
 from gsslam.slam import poses
-from gsslam.slam.chains import Chain, ChainKeyframe, Event
+from gsslam.slam.chains import Chain, ChainKeyframe, Event, pack_submap
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
 from gsslam.slam.plugins import call_plugins
@@ -299,6 +299,7 @@ class Pipeline:
             t0 = time.perf_counter()
             self._map_submap(chain, cid, sid, enc, frames, added, flows)
             self.stage_seconds["map"] += time.perf_counter() - t0
+        pack_submap(enc, self.keyframes, added)
         self.prev_frames = frames
         self.window = [frames[-1]]
 

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gsslam.bench.pipeline import run_lengths
-
-pytestmark = pytest.mark.slow  # whole runs
+from gsslam.bench.pipeline import growth_mb_per_100_frames, run_lengths
 
 SMALL = [
     "mapper.max_side=80",
@@ -16,6 +14,7 @@ SMALL = [
 ]
 
 
+@pytest.mark.slow  # whole runs
 def test_lengths_report_stages_memory_and_a_chart(bundled_tum, tmp_path):
     res = run_lengths(bundled_tum, lengths=(20, 40), pattern="f", overrides=SMALL, plot=tmp_path / "rss.png")
     a, b = res["runs"]
@@ -27,3 +26,15 @@ def test_lengths_report_stages_memory_and_a_chart(bundled_tum, tmp_path):
         assert r["cpu_s"] > 0
     assert len(res["rss_by_frame"]["40 frames"]) == 4  # every 10 frames
     assert (tmp_path / "rss.png").stat().st_size > 1000
+    # each length runs in a fresh process: the 40-frame run starts where the 20-frame one started
+    # (one process used to carry the first run's memory into the second)
+    (f20, mb20), (f40, mb40) = res["rss_by_frame"]["20 frames"][0], res["rss_by_frame"]["40 frames"][0]
+    assert f20 == f40 == 10 and abs(mb40 - mb20) < 0.25 * mb20, (mb20, mb40)
+    for r, key in ((a, "20 frames"), (b, "40 frames")):
+        assert r["peak_rss_mb"] >= max(mb for _, mb in res["rss_by_frame"][key]) - 1  # VmHWM: the peak
+
+
+def test_growth_is_the_slope_after_the_first_frames():
+    rss = [(f, 100.0 + (500 if f <= 100 else 0.25 * f)) for f in range(10, 1001, 10)]  # 25 MB / 100
+    assert growth_mb_per_100_frames(rss) == pytest.approx(25.0)
+    assert growth_mb_per_100_frames(rss[:11]) is None  # nothing after frame 100

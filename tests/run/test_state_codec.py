@@ -84,3 +84,27 @@ def test_8bit_images_are_stored_as_bytes_and_come_back_exactly():
     assert [a.dtype for a in enc.arrays.values()] == [np.uint8, np.float32]
     for a, b in zip(back.leaves, [img, other]):
         assert a.dtype == np.float32 and np.array_equal(a, b)
+
+
+def test_views_of_a_stored_array_are_stored_as_views():
+    base = np.arange(2 * 3 * 4, dtype=np.float32).reshape(2, 3, 4) * np.float32(0.1)
+    strided = base[:, 1, ::2]  # [2, 2]: a view with gaps
+    alone = np.arange(5.0)[1:]  # its base is stored nowhere: stored whole
+    back, enc = _round_trip([base, base[1], strided, alone], [])
+    assert sum(a.nbytes for a in enc.arrays.values()) == base.nbytes + alone.nbytes  # no copies of base
+    b0, b1, b2, b3 = back
+    assert np.shares_memory(b1, b0) and np.shares_memory(b2, b0)
+    for got, want in zip(back, [base, base[1], strided, alone], strict=True):
+        assert got.dtype == want.dtype and got.strides == want.strides
+        np.testing.assert_array_equal(got, want)
+    b0[1, 1, 2] = -1.0  # one buffer again, as before saving
+    assert b1[1, 2] == -1.0 and b2[1, 1] == -1.0
+
+
+def test_a_view_cannot_reach_outside_its_array():
+    enc = StateEncoder([])
+    base = np.zeros(8, dtype=np.float32)
+    tree = json.loads(dumps(enc.encode([base, base[2:]], "root")))
+    tree["v"][1]["offset"] = 64  # past the end of the 32-byte array
+    with pytest.raises(StateCodecError):
+        StateDecoder([], dict(enc.arrays), lambda n: None).decode(tree)

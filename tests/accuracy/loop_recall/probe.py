@@ -3,7 +3,7 @@ the map off and loops on, record every loop candidate with its verification verd
 loop records and per-keyframe ground truth (pose, depth at point-map size) in
 ``$LOOP_RECALL_OUT/<seq>_<tag>.pkl`` (default /tmp/loop_recall). ``replay.py`` re-verifies the
 candidates offline under other gates and labels each against the ground truth.
-Usage: ``PYTHONPATH=. python tests/accuracy/loop_recall/probe.py fbf --tag before [--set loop.x=y]``."""
+Usage: ``PYTHONPATH=. python tests/accuracy/loop_recall/probe.py fbf --tag before [--mode rgbd] [--set loop.x=y]``."""
 from __future__ import annotations
 
 import argparse
@@ -57,12 +57,13 @@ def main():
     ap.add_argument("seq", choices=sorted(SEQ))
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--tag", default="")
+    ap.add_argument("--mode", default="mono", choices=["mono", "rgbd"])
     a = ap.parse_args()
     os.makedirs(OUT, exist_ok=True)
     logging.basicConfig(level=logging.WARNING)
     name, path, kw = SEQ[a.seq]
     ds = open_dataset(name, path, **kw)
-    cfg = load_config(None, ["mapper.enabled=false", "loop.enabled=true", *a.set], mode="mono")
+    cfg = load_config(None, ["mapper.enabled=false", "loop.enabled=true", *a.set], mode=a.mode)
     pipe = Pipeline(cfg, ds.intrinsics)
     cands = []
     inner = detector_mod.verify_candidate
@@ -97,7 +98,7 @@ def main():
                for fi in rec.frame_indices]
         subs.append(dict(rec=rec, gt_T_world_cam=[gt_pose[fi] for fi in rec.frame_indices], gt_depth_small=np.stack(dgt)))
     met = pipe.loop_stage.metrics()
-    row = dict(seq=a.seq, tag=a.tag, set=a.set, chains=len(pipe.chains),
+    row = dict(seq=a.seq, mode=a.mode, tag=a.tag, set=a.set, chains=len(pipe.chains),
                ate_cm=ate_cm(gt, ts, pipe.frame_poses()), ate_kf_cm=ate_cm(gt, ts, pipe.keyframe_poses()),
                ate_kf_before_batch_cm=ate_cm(gt, ts, kf_before),
                loops={k: met[k] for k in ("candidates", "detected", "accepted", "rejected", "in_graph", "unverified")},
@@ -105,7 +106,7 @@ def main():
     print(json.dumps(row))
     with open(f"{OUT}/results.jsonl", "a") as fh:
         fh.write(json.dumps(row) + "\n")
-    with open(f"{OUT}/{a.seq}_{a.tag}.pkl", "wb") as fh:
+    with open(f"{OUT}/{a.seq}{'_rgbd' if a.mode == 'rgbd' else ''}_{a.tag}.pkl", "wb") as fh:
         pickle.dump(dict(row=row, cands=cands, subs=subs, loops=met["loops"]), fh)
 
 

@@ -137,7 +137,9 @@ class LoopDetector:
         accepted = []
         for cand in self.candidates(i, poses):
             self.stats.candidates += 1
-            verdict = verify_candidate(cand, self._records[i], self._records[cand.m], self.cfg, self.mode, self._rng)
+            verdict = verify_candidate(
+                cand, self._records[i], self._records[cand.m], self.cfg, self.mode, self._rng
+            )
             loop = verdict.loop
             if loop is None:
                 self.stats.unverified[verdict.why] = self.stats.unverified.get(verdict.why, 0) + 1

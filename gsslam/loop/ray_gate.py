@@ -63,7 +63,9 @@ def range_inlier_test(
     """``T_i_m`` -> [N] bool: ``|T X_m - X_i| < max_rel x`` the range of ``X_i`` in the view that saw it
     (an isotropic gate that grows with each point's own depth, like the point map's noise)."""
     T_cam_local = invert_T(T_local_cam)[view_i]  # [N, 4, 4]
-    rng_i = np.linalg.norm(np.einsum("nij,nj->ni", T_cam_local[:, :3, :3], X_i) + T_cam_local[:, :3, 3], axis=1)
+    rng_i = np.linalg.norm(
+        np.einsum("nij,nj->ni", T_cam_local[:, :3, :3], X_i) + T_cam_local[:, :3, 3], axis=1
+    )
 
     def test(T_i_m: np.ndarray) -> np.ndarray:
         return np.linalg.norm(transform_points(T_i_m, X_m) - X_i, axis=1) < max_rel * rng_i

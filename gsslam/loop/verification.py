@@ -132,7 +132,13 @@ def verify_candidate(
     elif mode == "mono" and cfg.mono_inlier_gate == "range" and len(X_i):
         test = range_inlier_test(X_i, X_m, view_i, rec_i.T_local_cam, cfg.inlier_threshold_rel)
     T, inl = ransac_transform(
-        X_i, X_m, thr, with_scale=(mode == "mono"), iterations=cfg.ransac_iterations, rng=rng, inlier_test=test
+        X_i,
+        X_m,
+        thr,
+        with_scale=(mode == "mono"),
+        iterations=cfg.ransac_iterations,
+        rng=rng,
+        inlier_test=test,
     )
     n_inl = int(inl.sum())
     ratio = n_inl / max(1, len(X_i))

@@ -50,7 +50,11 @@ def test_view_angle_limit_drops_a_wall_seen_from_60_degrees_aside_keeps_10():
 
 def _correct(sm, loop, trans_tol, rot_tol=1.0, scale_tol=0.03):
     R, t, s = split_sim3(np.linalg.inv(gt_relative(sm, loop.i, loop.m)) @ loop.T_i_m)
-    return np.degrees(np.linalg.norm(so3_log(R))) < rot_tol and np.linalg.norm(t) < trans_tol and abs(s - 1) < scale_tol
+    return (
+        np.degrees(np.linalg.norm(so3_log(R))) < rot_tol
+        and np.linalg.norm(t) < trans_tol
+        and abs(s - 1) < scale_tol
+    )
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +67,12 @@ def noisy_revisit_mono():
 
 # measured (all 3 revisit candidates verified by both): range at most 1.57 deg / 6.4 % of the depth / 3.9 % in
 # scale, ray 0.22 deg / 1.7 % / 0.8 %; the "median" gate at the same 4 % verifies 1 of the 3 (2.0 deg / 8.7 %)
-@pytest.mark.parametrize("gate, rot_tol, trans_rel, scale_tol", [("range", 2.0, 0.08, 0.05), ("ray", 0.5, 0.03, 0.02)])
-def test_mono_gates_verify_a_true_loop_with_noisy_depth(noisy_revisit_mono, gate, rot_tol, trans_rel, scale_tol):
+@pytest.mark.parametrize(
+    "gate, rot_tol, trans_rel, scale_tol", [("range", 2.0, 0.08, 0.05), ("ray", 0.5, 0.03, 0.02)]
+)
+def test_mono_gates_verify_a_true_loop_with_noisy_depth(
+    noisy_revisit_mono, gate, rot_tol, trans_rel, scale_tol
+):
     sm = noisy_revisit_mono
     cfg = LoopConfig(mono_inlier_gate=gate, inlier_threshold_rel=0.04, ray_depth_rel=0.08)
     det, _, loops = run_detector(sm, "mono", cfg)
@@ -110,7 +118,9 @@ def test_inlier_tests_follow_depth_noise_and_refuse_a_wrong_transform(make_test)
     for scale in (0.1, 1.0, 10.0):
         T = make_T(so3_exp(np.array([0.3, -0.2, 0.1])), np.array([0.5, 0.1, -0.3]), 1.7)
         X_true = rays * z[:, None]
-        X_m = transform_points(invert_T(T), np.einsum("nij,nj->ni", T_lc[view, :3, :3], X_true) + T_lc[view, :3, 3])
+        X_m = transform_points(
+            invert_T(T), np.einsum("nij,nj->ni", T_lc[view, :3, :3], X_true) + T_lc[view, :3, 3]
+        )
         S = make_T(np.eye(3), np.zeros(3), scale)  # the same scene in other units
         T_s = S @ T @ invert_T(S)
         T_lc_s = T_lc.copy()

@@ -4,6 +4,7 @@ loop records and per-keyframe ground truth (pose, depth at point-map size) in
 ``$LOOP_RECALL_OUT/<seq>_<tag>.pkl`` (default /tmp/loop_recall). ``replay.py`` re-verifies the
 candidates offline under other gates and labels each against the ground truth.
 Usage: ``PYTHONPATH=. python tests/accuracy/loop_recall/probe.py fbf --tag before [--mode rgbd] [--set loop.x=y]``."""
+
 from __future__ import annotations
 
 import argparse
@@ -35,7 +36,9 @@ SEQ = {  # the tracking suite's rows (gsslam/run/suites/tracking.yaml)
 
 def ate_cm(gt, ts, poses):
     keys = sorted(poses)
-    res, _ = compute_ate(gt, Trajectory(np.array([ts[k] for k in keys]), np.stack([poses[k] for k in keys])), align="sim3")
+    res, _ = compute_ate(
+        gt, Trajectory(np.array([ts[k] for k in keys]), np.stack([poses[k] for k in keys])), align="sim3"
+    )
     return 100 * float(res.stats.rmse)
 
 
@@ -49,6 +52,7 @@ def gt_depth_getter(seq, ds):
     def get(k):
         j = int(np.argmin(np.abs(tts - base_ts[ds.source_index(k)])))
         return tum[j].depth
+
     return get
 
 
@@ -70,9 +74,19 @@ def main():
 
     def recording(cand, rec_i, rec_m, cfg_, mode, rng):
         v = inner(cand, rec_i, rec_m, cfg_, mode, rng)
-        cands.append(dict(i=cand.i, m=cand.m, cand=cand, matches=v.matches, inliers=v.inliers, why=v.why,
-                          T_i_m=None if v.loop is None else v.loop.T_i_m,
-                          X_i=None if v.loop is None else v.loop.X_i, X_m=None if v.loop is None else v.loop.X_m))
+        cands.append(
+            dict(
+                i=cand.i,
+                m=cand.m,
+                cand=cand,
+                matches=v.matches,
+                inliers=v.inliers,
+                why=v.why,
+                T_i_m=None if v.loop is None else v.loop.T_i_m,
+                X_i=None if v.loop is None else v.loop.X_i,
+                X_m=None if v.loop is None else v.loop.X_m,
+            )
+        )
         return v
 
     detector_mod.verify_candidate = recording
@@ -94,15 +108,36 @@ def main():
     subs = []
     for rec, enc in zip(det.records(), ch.encodings):
         hs, ws = rec.depth_small.shape[1:]
-        dgt = [cv2.resize(np.nan_to_num(depth_of(fi), nan=0.0).astype(np.float32), (ws, hs), interpolation=cv2.INTER_NEAREST)
-               for fi in rec.frame_indices]
-        subs.append(dict(rec=rec, gt_T_world_cam=[gt_pose[fi] for fi in rec.frame_indices], gt_depth_small=np.stack(dgt)))
+        dgt = [
+            cv2.resize(
+                np.nan_to_num(depth_of(fi), nan=0.0).astype(np.float32),
+                (ws, hs),
+                interpolation=cv2.INTER_NEAREST,
+            )
+            for fi in rec.frame_indices
+        ]
+        subs.append(
+            dict(
+                rec=rec,
+                gt_T_world_cam=[gt_pose[fi] for fi in rec.frame_indices],
+                gt_depth_small=np.stack(dgt),
+            )
+        )
     met = pipe.loop_stage.metrics()
-    row = dict(seq=a.seq, mode=a.mode, tag=a.tag, set=a.set, chains=len(pipe.chains),
-               ate_cm=ate_cm(gt, ts, pipe.frame_poses()), ate_kf_cm=ate_cm(gt, ts, pipe.keyframe_poses()),
-               ate_kf_before_batch_cm=ate_cm(gt, ts, kf_before),
-               loops={k: met[k] for k in ("candidates", "detected", "accepted", "rejected", "in_graph", "unverified")},
-               wall_s=round(wall, 1))
+    row = dict(
+        seq=a.seq,
+        mode=a.mode,
+        tag=a.tag,
+        set=a.set,
+        chains=len(pipe.chains),
+        ate_cm=ate_cm(gt, ts, pipe.frame_poses()),
+        ate_kf_cm=ate_cm(gt, ts, pipe.keyframe_poses()),
+        ate_kf_before_batch_cm=ate_cm(gt, ts, kf_before),
+        loops={
+            k: met[k] for k in ("candidates", "detected", "accepted", "rejected", "in_graph", "unverified")
+        },
+        wall_s=round(wall, 1),
+    )
     print(json.dumps(row))
     with open(f"{OUT}/results.jsonl", "a") as fh:
         fh.write(json.dumps(row) + "\n")

@@ -10,10 +10,10 @@ Usage: ``PYTHONPATH=. python tests/accuracy/loop_recall/replay.py PKL [--set loo
 ``--negatives N``: also verify N submap pairs with ground-truth overlap < 0.02 (the most alike by appearance
 first, all view pairs by appearance): every loop verified there is a false loop (precision on real data).
 """
+
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pickle
 from collections import Counter
@@ -28,7 +28,9 @@ from gsslam.loop.types import LoopCandidate
 from gsslam.loop.verification import verify_candidate
 
 ROT_TOL_DEG, POINT_TOL_REL, TRUE_OVERLAP, FALSE_OVERLAP = 3.0, 0.05, 0.1, 0.02
-GT_VIEW_ANGLE_DEG = 30.0  # ground-truth overlap counts points seen from directions <= 30 deg apart (matchable)
+GT_VIEW_ANGLE_DEG = (
+    30.0  # ground-truth overlap counts points seen from directions <= 30 deg apart (matchable)
+)
 
 
 def gt_world_local(sub) -> np.ndarray:
@@ -67,25 +69,39 @@ def main():
         ov = reprojection_overlap(ri, M[i], rm, M[m], 0.2, GT_VIEW_ANGLE_DEG)[0]
         v = verify_candidate(c["cand"], ri, rm, cfg, "mono", rng)
         T_gt = invert_T(M[i]) @ M[m]
-        row = dict(i=i, m=m, gt_overlap=round(ov, 3), was=c["why"], why=v.why, matches=v.matches, inliers=v.inliers)
+        row = dict(
+            i=i, m=m, gt_overlap=round(ov, 3), was=c["why"], why=v.why, matches=v.matches, inliers=v.inliers
+        )
         if v.loop is not None:
             rot, perr = loop_error(v.loop.T_i_m, T_gt, v.loop.X_m, ri.median_depth)
-            row.update(rot=round(rot, 2), perr=round(perr, 4), correct=bool(rot < ROT_TOL_DEG and perr < POINT_TOL_REL))
+            row.update(
+                rot=round(rot, 2),
+                perr=round(perr, 4),
+                correct=bool(rot < ROT_TOL_DEG and perr < POINT_TOL_REL),
+            )
         rows.append(row)
     true = [r for r in rows if r["gt_overlap"] > TRUE_OVERLAP]
     ver = [r for r in rows if r["why"] == "verified"]
-    out = dict(pkl=a.pkl, set=a.set, candidates=len(rows), true_candidates=len(true),
-               verified=len(ver), verified_correct=sum(r["correct"] for r in ver),
-               verified_of_true=sum(r["why"] == "verified" for r in true),
-               was_verified=sum(r["was"] == "verified" for r in rows),
-               why=dict(Counter(r["why"] for r in rows)))
+    out = dict(
+        pkl=a.pkl,
+        set=a.set,
+        candidates=len(rows),
+        true_candidates=len(true),
+        verified=len(ver),
+        verified_correct=sum(r["correct"] for r in ver),
+        verified_of_true=sum(r["why"] == "verified" for r in true),
+        was_verified=sum(r["was"] == "verified" for r in rows),
+        why=dict(Counter(r["why"] for r in rows)),
+    )
     if a.negatives:
         n = len(subs)
         app = {}
         neg = []
         for i in range(n):
             for m in range(i - 3):
-                ov = reprojection_overlap(subs[i]["rec"], M[i], subs[m]["rec"], M[m], 0.2, GT_VIEW_ANGLE_DEG)[0]
+                ov = reprojection_overlap(subs[i]["rec"], M[i], subs[m]["rec"], M[m], 0.2, GT_VIEW_ANGLE_DEG)[
+                    0
+                ]
                 if ov < FALSE_OVERLAP:
                     A = appearance_overlap(subs[i]["rec"].appearance, subs[m]["rec"].appearance)
                     app[(i, m)] = A
@@ -100,7 +116,12 @@ def main():
             v = verify_candidate(cand, subs[i]["rec"], subs[m]["rec"], cfg, "mono", rng)
             if v.loop is not None:
                 fp.append((i, m, v.matches, v.inliers))
-        out.update(negatives_available=len(neg), negatives_tried=min(len(neg), a.negatives), false_verified=len(fp), false_list=fp)
+        out.update(
+            negatives_available=len(neg),
+            negatives_tried=min(len(neg), a.negatives),
+            false_verified=len(fp),
+            false_list=fp,
+        )
     vr = [r for r in ver if "rot" in r]
     out["median_rot_deg"] = round(float(np.median([r["rot"] for r in vr])), 2) if vr else None
     out["median_perr"] = round(float(np.median([r["perr"] for r in vr])), 4) if vr else None

@@ -182,6 +182,7 @@ class LoopConfig:
     min_inlier_ratio: float = 0.25  # RANSAC inliers / matches needed to accept a loop
     ransac_iterations: int = 300
     depth_tolerance_rel: float = 0.2  # reprojected depth must agree with the view's depth within this
+    max_view_angle_deg: float = 180.0  # overlap counts a point for a view pair only if their rays to it differ by <= this
     points_per_submap: int = 600  # subsampled points kept per submap for reprojection overlap
     orb_features: int = 400  # ORB keypoints per keyframe kept for verification
     max_reprojection_checks: int = 8  # candidates (by appearance) that get the reprojection test
@@ -196,6 +197,9 @@ class LoopConfig:
     mono_sigma_min_rel: float = 0.25  # mono: floor of that sigma, as a fraction of the loop's inlier distance
     mono_sigma_ray: bool = True  # mono: loop noise along / across each point's viewing ray, from the loop's residuals (else one isotropic sigma)
     mono_dcs_phi: float = 1.0  # mono, ray noise: DCS kernel per loop, full weight up to chi2 = this x 3N (0: no kernel)
+    mono_inlier_gate: str = "median"  # mono RANSAC inliers (loop/ray_gate.py): "median" |T X_m - X_i| < inlier_threshold_rel x median depth; "range": < inlier_threshold_rel x the point's range; "ray": ray angle + range
+    ray_threshold_deg: float = 1.0  # mono "ray" gate: angle between the two rays of a match, in submap i's view
+    ray_depth_rel: float = 0.04  # mono "ray" gate: range disagreement / range (the point maps' depth noise)
 
 
 @dataclass(frozen=True)

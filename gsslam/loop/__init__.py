@@ -6,7 +6,7 @@ docs/loop_closure.md for the data flow and how the pipeline uses it.
 
 from gsslam.loop.consistency import check_loops, drift_gate, propagate_correction
 from gsslam.loop.detector import LoopDetector
-from gsslam.loop.types import LoopCandidate, LoopConstraint, LoopError, LoopStats
+from gsslam.loop.types import LoopCandidate, LoopConstraint, LoopError, LoopStats, Verdict
 
 __all__ = [
     "LoopCandidate",
@@ -14,6 +14,7 @@ __all__ = [
     "LoopDetector",
     "LoopError",
     "LoopStats",
+    "Verdict",
     "check_loops",
     "drift_gate",
     "propagate_correction",

@@ -89,11 +89,25 @@ def spheres_intersect(
 
 
 def _covisible(
-    src: SubmapRecord, T_world_src: np.ndarray, dst: SubmapRecord, T_world_dst: np.ndarray, tol: float
+    src: SubmapRecord,
+    T_world_src: np.ndarray,
+    dst: SubmapRecord,
+    T_world_dst: np.ndarray,
+    tol: float,
+    max_angle_deg: float = 180.0,
 ) -> np.ndarray:  # [V_dst, N_src] bool: src point n agrees with dst view a
     T_dst_src = invert_T(T_world_dst) @ T_world_src  # src local -> dst local (dst units)
     X = src.points_local @ T_dst_src[:3, :3].T + T_dst_src[:3, 3]  # [N, 3]
     T_cam_local = invert_T(dst.T_local_cam)  # [V, 4, 4]
+    similar = np.ones((len(dst.T_local_cam), len(X)), dtype=bool)
+    if max_angle_deg < 180.0:  # the two views see the point from directions that far apart at most
+        c_src = src.T_local_cam[src.point_view, :3, 3] @ T_dst_src[:3, :3].T + T_dst_src[:3, 3]  # [N, 3]
+        r_src = X - c_src
+        r_dst = X[None] - dst.T_local_cam[:, None, :3, 3]  # [V, N, 3]
+        cos = np.einsum("vni,ni->vn", r_dst, r_src) / np.maximum(
+            np.linalg.norm(r_dst, axis=2) * np.linalg.norm(r_src, axis=1), 1e-12
+        )
+        similar = cos >= np.cos(np.radians(max_angle_deg))
     Xc = np.einsum("vij,nj->vni", T_cam_local[:, :3, :3], X) + T_cam_local[:, None, :3, 3]  # [V, N, 3]
     z = Xc[..., 2]
     zs = np.where(z > 1e-9, z, 1.0)
@@ -106,7 +120,7 @@ def _covisible(
     d = np.full(z.shape, np.nan)
     d[inside] = dst.depth_small[views[inside], v[inside], u[inside]]
     with np.errstate(invalid="ignore"):
-        return inside & np.isfinite(d) & (np.abs(z - d) <= tol * d)
+        return inside & similar & np.isfinite(d) & (np.abs(z - d) <= tol * d)
 
 
 def reprojection_overlap(
@@ -115,10 +129,16 @@ def reprojection_overlap(
     rec_m: SubmapRecord,
     T_world_m: np.ndarray,  # [4, 4] Sim(3)
     depth_tolerance_rel: float,
+    max_view_angle_deg: float = 180.0,
 ) -> tuple[float, np.ndarray]:
-    """Overlap ratio in [0, 1] and the co-visibility counts [V_i, V_m] of the views of i and m."""
-    m_in_i = _covisible(rec_m, T_world_m, rec_i, T_world_i, depth_tolerance_rel)  # [V_i, N_m]
-    i_in_m = _covisible(rec_i, T_world_i, rec_m, T_world_m, depth_tolerance_rel)  # [V_m, N_i]
+    """Overlap ratio in [0, 1] and the co-visibility counts [V_i, V_m] of the views of i and m.
+
+    ``max_view_angle_deg``: a point counts for a view pair only when the two views' rays to it are
+    at most this far apart (features do not match across wider viewpoint changes; 180: any).
+    """
+    a = max_view_angle_deg
+    m_in_i = _covisible(rec_m, T_world_m, rec_i, T_world_i, depth_tolerance_rel, a)  # [V_i, N_m]
+    i_in_m = _covisible(rec_i, T_world_i, rec_m, T_world_m, depth_tolerance_rel, a)  # [V_m, N_i]
     ratio = max(float(m_in_i.any(axis=0).mean()), float(i_in_m.any(axis=0).mean()))
     V_i, V_m = len(rec_i.T_local_cam), len(rec_m.T_local_cam)
     counts = np.zeros((V_i, V_m))

@@ -26,7 +26,7 @@ from gsslam.loop.appearance import appearance_overlap
 from gsslam.loop.consistency import check_loops, drift_gate, reject_inconsistent
 from gsslam.loop.covisibility import make_record, reprojection_overlap, spheres_intersect, world_sphere
 from gsslam.loop.types import LoopCandidate, LoopConstraint, LoopError, LoopStats, SubmapRecord
-from gsslam.loop.verification import verify
+from gsslam.loop.verification import verify_candidate
 from gsslam.types import SubmapEncoding
 
 log = logging.getLogger(__name__)
@@ -110,7 +110,7 @@ class LoopDetector:
         for j in order:
             m = self._ids[ks[j]]
             ratio, counts = reprojection_overlap(
-                rec_i, poses[i], self._records[m], poses[m], cfg.depth_tolerance_rel
+                rec_i, poses[i], self._records[m], poses[m], cfg.depth_tolerance_rel, cfg.max_view_angle_deg
             )
             score = W_POINTS * ratio + W_APPEARANCE * float(app[j])
             if ratio <= cfg.min_overlap or score <= cfg.min_score:
@@ -137,8 +137,16 @@ class LoopDetector:
         accepted = []
         for cand in self.candidates(i, poses):
             self.stats.candidates += 1
-            loop = verify(cand, self._records[i], self._records[cand.m], self.cfg, self.mode, self._rng)
+            verdict = verify_candidate(
+                cand, self._records[i], self._records[cand.m], self.cfg, self.mode, self._rng
+            )
+            loop = verdict.loop
             if loop is None:
+                self.stats.unverified[verdict.why] = self.stats.unverified.get(verdict.why, 0) + 1
+                log.debug(
+                    "loop candidate %d-%d not verified: %s (%d matches, %d inliers)",
+                    i, cand.m, verdict.why, verdict.matches, verdict.inliers,
+                )  # fmt: skip
                 continue
             self.stats.detected += 1
             ok, why = drift_gate(loop, poses, self.cfg)

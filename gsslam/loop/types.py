@@ -104,13 +104,25 @@ class LoopConstraint:
         return len(self.X_i)
 
 
+@dataclass(frozen=True)
+class Verdict:
+    """The outcome of verifying one candidate: the loop (``None`` when refused), the 3D matches, the
+    RANSAC inliers and why: "verified", "too few matches", "too few inliers", "low inlier ratio"."""
+
+    loop: LoopConstraint | None
+    matches: int
+    inliers: int
+    why: str
+
+
 @dataclass
 class LoopStats:
     """Counters for metrics.json.
 
     ``candidates``: pairs passing the overlap/score test; ``detected``: candidates verified by
     RANSAC; ``accepted``: verified loops handed to the graph (passed the drift gate);
-    ``rejected``: verified loops refused by the drift gate plus loops removed after optimisation.
+    ``rejected``: verified loops refused by the drift gate plus loops removed after optimisation;
+    ``unverified``: candidates refused by verification, counted by reason (:class:`Verdict`).
     """
 
     candidates: int = 0
@@ -121,6 +133,7 @@ class LoopStats:
     detect_seconds: float = 0.0
     submaps_checked: int = 0
     log: list[dict] = field(default_factory=list)
+    unverified: dict[str, int] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -130,5 +143,6 @@ class LoopStats:
             "rejected": self.rejected,
             "rejected_after_optimisation": self.rejected_after_optimisation,
             "mean_detect_ms": 1e3 * self.detect_seconds / max(1, self.submaps_checked),
+            "unverified": dict(self.unverified),
             "loops": list(self.log),
         }

@@ -10,13 +10,15 @@ model, refitted, become the loop constraint.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import cv2
 import numpy as np
 
 from gsslam.config import LoopConfig
 from gsslam.geometry import transform_points, umeyama
-from gsslam.loop.types import LoopCandidate, LoopConstraint, SubmapRecord
+from gsslam.loop.ray_gate import range_inlier_test, ray_inlier_test
+from gsslam.loop.types import LoopCandidate, LoopConstraint, SubmapRecord, Verdict
 
 log = logging.getLogger(__name__)
 
@@ -25,9 +27,10 @@ _MATCHER = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
 def match_3d(
     rec_i: SubmapRecord, rec_m: SubmapRecord, view_pairs: tuple[tuple[int, int], ...]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Matched 3D point pairs over the given view pairs: (X_i [N, 3], X_m [N, 3]) in local frames."""
-    Xi, Xm = [], []
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Matched 3D point pairs over the given view pairs: (X_i [N, 3], X_m [N, 3]) in local frames,
+    and the view of submap i each match was seen in (``view_i`` [N])."""
+    Xi, Xm, views = [], [], []
     for a, b in view_pairs:
         fa, fb = rec_i.features[a], rec_m.features[b]
         if len(fa.descriptors) < 3 or len(fb.descriptors) < 3:
@@ -39,9 +42,10 @@ def match_3d(
         ti = np.array([mt.trainIdx for mt in matches])
         Xi.append(fa.points_local[qi])
         Xm.append(fb.points_local[ti])
+        views.append(np.full(len(qi), a, dtype=np.int64))
     if not Xi:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    return np.concatenate(Xi), np.concatenate(Xm)
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    return np.concatenate(Xi), np.concatenate(Xm), np.concatenate(views)
 
 
 def _iterations_for(inlier_fraction: float, confidence: float = 0.999) -> int:
@@ -59,8 +63,18 @@ def ransac_transform(
     with_scale: bool,
     iterations: int,
     rng: np.random.Generator,
+    inlier_test: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray]:
-    """Best ``T_i_m`` (4x4) and its inlier mask [N]; ``(None, all-False)`` when no model fits."""
+    """Best ``T_i_m`` (4x4) and its inlier mask [N]; ``(None, all-False)`` when no model fits.
+
+    A pair is an inlier when ``|T X_m - X_i| < threshold``, or, given ``inlier_test`` (``T`` -> [N]
+    bool), when that says so (``threshold`` is then unused).
+    """
+    if inlier_test is None:
+
+        def inlier_test(T: np.ndarray) -> np.ndarray:
+            return np.linalg.norm(transform_points(T, X_m) - X_i, axis=1) < threshold
+
     n = len(X_i)
     best = np.zeros(n, dtype=bool)
     if n < 3:
@@ -78,7 +92,7 @@ def ransac_transform(
             T = umeyama(A, B, with_scale=with_scale)
         except (ValueError, np.linalg.LinAlgError):
             continue
-        inl = np.linalg.norm(transform_points(T, X_m) - X_i, axis=1) < threshold
+        inl = inlier_test(T)
         if inl.sum() > best.sum():
             best = inl
             needed = min(iterations, _iterations_for(best.mean()))
@@ -86,7 +100,7 @@ def ransac_transform(
         return None, best
     for _ in range(2):  # refit on inliers, re-select
         T = umeyama(X_m[best], X_i[best], with_scale=with_scale)
-        inl = np.linalg.norm(transform_points(T, X_m) - X_i, axis=1) < threshold
+        inl = inlier_test(T)
         if inl.sum() < 3:
             break
         best = inl
@@ -101,26 +115,41 @@ def inlier_threshold(rec_i: SubmapRecord, cfg: LoopConfig, mode: str) -> float:
     return cfg.inlier_threshold_rel * rec_i.median_depth
 
 
-def verify(
+def verify_candidate(
     cand: LoopCandidate,
     rec_i: SubmapRecord,
     rec_m: SubmapRecord,
     cfg: LoopConfig,
     mode: str,
     rng: np.random.Generator,
-) -> LoopConstraint | None:
-    """RANSAC-verify one candidate; ``None`` when too few or too inconsistent matches."""
-    X_i, X_m = match_3d(rec_i, rec_m, cand.view_pairs[: cfg.verify_view_pairs])
+) -> Verdict:
+    """RANSAC-verify one candidate; the :class:`Verdict` says why a rejected one failed."""
+    X_i, X_m, view_i = match_3d(rec_i, rec_m, cand.view_pairs[: cfg.verify_view_pairs])
     thr = inlier_threshold(rec_i, cfg, mode)
+    test = None
+    if mode == "mono" and cfg.mono_inlier_gate == "ray" and len(X_i):
+        test = ray_inlier_test(X_i, X_m, view_i, rec_i.T_local_cam, cfg.ray_threshold_deg, cfg.ray_depth_rel)
+    elif mode == "mono" and cfg.mono_inlier_gate == "range" and len(X_i):
+        test = range_inlier_test(X_i, X_m, view_i, rec_i.T_local_cam, cfg.inlier_threshold_rel)
     T, inl = ransac_transform(
-        X_i, X_m, thr, with_scale=(mode == "mono"), iterations=cfg.ransac_iterations, rng=rng
+        X_i,
+        X_m,
+        thr,
+        with_scale=(mode == "mono"),
+        iterations=cfg.ransac_iterations,
+        rng=rng,
+        inlier_test=test,
     )
     n_inl = int(inl.sum())
     ratio = n_inl / max(1, len(X_i))
     log.debug("loop %d-%d: %d matches, %d inliers (%.2f)", cand.i, cand.m, len(X_i), n_inl, ratio)
-    if T is None or n_inl < cfg.min_inliers or ratio < cfg.min_inlier_ratio:
-        return None
-    return LoopConstraint(
+    if len(X_i) < cfg.min_inliers:
+        return Verdict(None, len(X_i), n_inl, "too few matches")
+    if T is None or n_inl < cfg.min_inliers:
+        return Verdict(None, len(X_i), n_inl, "too few inliers")
+    if ratio < cfg.min_inlier_ratio:
+        return Verdict(None, len(X_i), n_inl, "low inlier ratio")
+    loop = LoopConstraint(
         i=cand.i,
         m=cand.m,
         X_i=X_i[inl],
@@ -130,3 +159,16 @@ def verify(
         score=cand.score,
         threshold=thr,
     )
+    return Verdict(loop, len(X_i), n_inl, "verified")
+
+
+def verify(
+    cand: LoopCandidate,
+    rec_i: SubmapRecord,
+    rec_m: SubmapRecord,
+    cfg: LoopConfig,
+    mode: str,
+    rng: np.random.Generator,
+) -> LoopConstraint | None:
+    """RANSAC-verify one candidate; ``None`` when too few or too inconsistent matches."""
+    return verify_candidate(cand, rec_i, rec_m, cfg, mode, rng).loop

@@ -227,11 +227,14 @@ class LoopStage:
         out: dict = {k: 0 for k in _STAT_KEYS}
         out["enabled"] = self.cfg.enabled
         out["loops"] = []
+        out["unverified"] = {}
         detect_ms, checked = 0.0, 0
         for det in self._detectors.values():
             d = det.stats.to_dict()
             for k in _STAT_KEYS:
                 out[k] += d[k]
+            for why, n in d["unverified"].items():
+                out["unverified"][why] = out["unverified"].get(why, 0) + n
             out["loops"] += d["loops"]
             detect_ms += det.stats.detect_seconds * 1e3
             checked += det.stats.submaps_checked

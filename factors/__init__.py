@@ -14,6 +14,7 @@ from .keyframe_tie import make_keyframe_tie_factor
 from .loop_points import make_relative_point_factor
 from .points import make_point_factor
 from .registration import make_registration_factor
+from .relative_pose import make_relative_pose_factor
 from .scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
 from .submap_alignment import make_submap_alignment_factor
 
@@ -26,6 +27,7 @@ __all__ = [
     "make_point_factor",
     "make_registration_factor",
     "make_relative_point_factor",
+    "make_relative_pose_factor",
     "make_scale_factor",
     "make_scale_prior_factor",
     "make_submap_alignment_factor",

@@ -194,6 +194,10 @@ class LoopConfig:
     rejoin_min_fitness: float = 0.3  # mono chains re-joined: new points on the earlier surface after ICP
     mono_sigma_from_residual: bool = True  # mono: loop residual in submap units, sigma = the loop's inlier RMS (else graph.loop_sigma_m, world units)
     mono_sigma_min_rel: float = 0.25  # mono: floor of that sigma, as a fraction of the loop's inlier distance
+    icp_refine: bool = False  # RGB-D: refine each loop by dense ICP of its closest keyframe pair; a relative-pose factor with the ICP information replaces its point factor (loop/icp_loop.py)
+    icp_effective_points: float = 100.0  # RGB-D ICP loops: the ICP Hessian of N matches is rescaled to this many independent matches
+    icp_huber: float = 3.0  # RGB-D ICP loops: Huber threshold of the relative-pose factor (whitened units)
+    icp_max_shift_m: float = 0.05  # RGB-D ICP loops: refused when ICP moves the loop's pose farther than this from RANSAC's
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,9 @@ After submap ``i`` has been added to its chain's graph and the graph updated
 1. the loop detector of the chain registers the submap (compact record: points, tiny images, ORB);
 2. ``detect(i, poses)`` against the graph's current ``T_world_local`` returns verified loops that
    passed the drift gate; each goes into the graph as one point factor (``SubmapGraph.add_loop``;
-   mono: in submap-i units, sigma from the loop's own inlier residual, :mod:`gsslam.loop.weights`);
+   mono: in submap-i units, sigma from the loop's own inlier residual, :mod:`gsslam.loop.weights`),
+   or, RGB-D with ``loop.icp_refine``, as a relative pose refined by dense ICP of its closest keyframe
+   pair with the ICP information (``SubmapGraph.add_loop_pose``, :mod:`gsslam.loop.icp_loop`);
 3. one iSAM2 update; ``check_loops`` names loops the optimised graph could not satisfy or that
    conflict with the others; they are removed and the graph updated again
    (``update(extra_iterations=10)``);
@@ -59,6 +61,8 @@ class LoopStage:
         self.relocalized: list[dict] = []  # chains placed in the world frame by re-localization
         self._reloc_rng = np.random.default_rng(seed + 7919)
         self._across: dict[tuple[int, int], list] = {}  # (new chain, earlier chain) -> verified loops (mono)
+        self.icp_refined = 0  # RGB-D loops that entered the graph as ICP relative poses
+        self.icp_refused = 0  # ... and those whose ICP was refused (they keep the point factor)
 
     def _detector(self, cid: int):
         if cid not in self._detectors:
@@ -88,6 +92,10 @@ class LoopStage:
 
         loops = self._loops[cid]
         for lc in new:  # mono: each loop weighs by its own inlier residual (loop/weights.py)
+            icp = self._refine_icp(chain, lc)  # RGB-D with loop.icp_refine: dense ICP (loop/icp_loop.py)
+            if icp is not None:
+                loops[graph.add_loop_pose(lc.i, lc.m, icp.T_i_m, icp.information, self.cfg.icp_huber)] = lc
+                continue
             sigma = loop_point_sigma(lc, self.mode, self.cfg)  # submap-i units (mono) or None
             loops[graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m, sigma=sigma, local_units=sigma is not None)] = lc
         graph.update()
@@ -101,6 +109,24 @@ class LoopStage:
             graph.update(extra_iterations=10)
         self.corrections += 1
         return True
+
+    def _refine_icp(self, chain, lc):
+        """RGB-D with ``loop.icp_refine``: the loop refined by dense ICP (:class:`IcpLoop`), or None."""
+        if self.mode != "rgbd" or not self.cfg.icp_refine:
+            return None
+        encs = chain.encodings
+        if max(lc.i, lc.m) >= len(encs):
+            return None
+        from gsslam.loop.icp_loop import refine_loop_icp
+
+        icp = refine_loop_icp(lc, encs[lc.i], encs[lc.m], self.cfg)
+        if icp is None:
+            self.icp_refused += 1
+            return None
+        self.icp_refined += 1
+        log.info("loop %d-%d refined by ICP (views %s, %d points, rms %.1f mm, moved %.1f mm / %.2f deg)",
+                 lc.i, lc.m, icp.views, icp.inliers, 1e3 * icp.rmse_m, 1e3 * icp.shift_m, icp.shift_deg)  # fmt: skip
+        return icp
 
     def relocalize(self, chains, cid: int, sid: int) -> np.ndarray | None:
         """``T_world_chain`` for chain ``cid`` from its submap ``sid`` verified against an earlier chain
@@ -230,4 +256,5 @@ class LoopStage:
         out["mean_detect_ms"] = detect_ms / max(1, checked)
         out["in_graph"] = sum(len(v) for v in self._loops.values())
         out["relocalized"] = list(self.relocalized)
+        out["icp_refined"], out["icp_refused"] = self.icp_refined, self.icp_refused
         return out

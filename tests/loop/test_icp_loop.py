@@ -93,3 +93,40 @@ def test_information_moves_to_the_loops_right_perturbation():
     # the same quadratic form: xi^T H xi = delta^T info delta
     assert np.isclose(xi @ H @ xi, delta @ info @ delta, rtol=1e-4)
     assert np.allclose(adjoint(np.eye(4)), np.eye(6))
+
+
+def test_icp_loops_close_the_synthetic_revisit_through_the_graph():
+    """The block-room revisit (tests/loop/test_with_submap_graph.py) closed by ICP relative-pose factors
+    (SubmapGraph.add_loop_pose) instead of point factors: every loop is refined and the submap ATE
+    comes out as low as with the point loops (measured 1.82 vs 1.77 cm)."""
+    from gsslam.config import GraphConfig
+    from gsslam.datasets.synthetic import block_room, make_submaps
+    from gsslam.datasets.synthetic.trajectories import outward_circle
+    from gsslam.graph import submap_graph
+    from gsslam.loop import LoopDetector
+    from test_with_submap_graph import _drifted_encodings, _submap_ate
+
+    sm = make_submaps(block_room(seed=1), outward_circle(61, 1.2), mono=False, seed=0)
+    encs = _drifted_encodings(sm, np.random.default_rng(0))
+    cfg, ate, refined = LoopConfig(), {}, 0
+    for use_icp in (False, True):
+        graph = submap_graph.SubmapGraph(GraphConfig(), monocular=False)
+        det = LoopDetector(cfg, mode="rgbd")
+        for s, enc in enumerate(encs):
+            graph.add_submap(enc)
+            graph.update()
+            det.add_submap(s, enc, sm.images[s])
+            found = det.detect(s, {k: graph.submap_pose(k) for k in range(graph.num_submaps)})
+            for lc in found:
+                icp = refine_loop_icp(lc, encs[lc.i], encs[lc.m], cfg) if use_icp else None
+                if icp is None:
+                    graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m)
+                else:
+                    refined += 1
+                    graph.add_loop_pose(lc.i, lc.m, icp.T_i_m, icp.information, cfg.icp_huber)
+            if found:
+                graph.update()
+        graph.update(extra_iterations=5)
+        ate[use_icp] = _submap_ate(graph, sm)
+    assert refined == len(det.stats.log) >= 2
+    assert ate[True] < 0.025 and ate[True] < 1.1 * ate[False], ate

@@ -130,3 +130,27 @@ def test_icp_loops_close_the_synthetic_revisit_through_the_graph():
         ate[use_icp] = _submap_ate(graph, sm)
     assert refined == len(det.stats.log) >= 2
     assert ate[True] < 0.025 and ate[True] < 1.1 * ate[False], ate
+
+
+def test_loop_stage_adds_rgbd_loops_as_icp_relative_poses(revisit_rgbd):
+    """With loop.icp_refine the pipeline's loop stage hands RGB-D loops to the graph as ICP relative poses."""
+    from types import SimpleNamespace
+
+    from gsslam.config import GraphConfig
+    from gsslam.graph.submap_graph import SubmapGraph
+    from gsslam.slam.loop_stage import LoopStage
+
+    sm = revisit_rgbd[0]
+    graph = SubmapGraph(GraphConfig(), monocular=False)
+    chain = SimpleNamespace(graph=graph, encodings=[])
+    stage = LoopStage(dataclasses.replace(LoopConfig(), icp_refine=True), "rgbd")
+    for s, (enc, img) in enumerate(zip(sm.encodings, sm.images)):
+        graph.add_submap(enc)
+        chain.encodings.append(enc)
+        graph.update()
+        frames = [SimpleNamespace(index=f, gray=g) for f, g in zip(enc.frame_indices, img)]
+        stage.after_submap(chain, 0, s, enc, frames)
+    kinds = [op[2][0] for op in graph.backend.replay_log() if op[0] == "factor"]
+    m = stage.metrics()
+    assert m["icp_refined"] >= 1 and kinds.count("relative_pose") == m["icp_refined"]
+    assert m["icp_refined"] + m["icp_refused"] == m["accepted"]

@@ -12,8 +12,10 @@ Residual per source point ``p`` (source camera, metres) and its projective partn
     r = n . (T_tgt_src p - q) / sigma(z),     sigma(z) = sigma0 + sigma2 z^2  (Kinect-like noise)
 
 Huber-weighted Gauss-Newton on ``T_tgt_src`` with a left perturbation ``exp(xi) T`` (``xi`` =
-translation, rotation): ``dr/dxi = [n, p' x n] / sigma``. Matches farther than ``max_dist`` apart or
-at target depth discontinuities are dropped. The result is refused (``ok=False``) when too few points
+translation, rotation): ``dr/dxi = [n, p' x n] / sigma``; its normal matrix at the last step is
+returned (``IcpResult.hessian``: the information of the estimate, for a graph factor, see
+:mod:`gsslam.loop.icp_loop`). Matches farther than ``max_dist`` apart or at target depth
+discontinuities are dropped. The result is refused (``ok=False``) when too few points
 match, when the system is ill-conditioned (a plane or a corridor: translation along it is not
 observed) or when it moved far from the start.
 """
@@ -38,6 +40,9 @@ class IcpResult:
     rmse_m: float  # point-to-plane RMS of the inliers, metres
     condition: float  # smallest / largest eigenvalue of the (scaled) normal matrix
     reason: str = ""
+    # [6, 6] Gauss-Newton normal matrix J^T W J of the whitened residuals at the last step (finest level),
+    # over the left perturbation (translation, rotation) of T_tgt_src in the target camera; None when refused
+    hessian: np.ndarray | None = None
 
 
 def _points(depth: np.ndarray, intr: CameraIntrinsics, stride: int) -> tuple[np.ndarray, np.ndarray]:
@@ -117,6 +122,7 @@ def icp_point_to_plane(
     """Point-to-plane ICP ``T_tgt_src`` (module docstring)."""
     T = np.asarray(T_init, dtype=np.float64).copy()
     inliers, rmse, cond = 0, float("nan"), 0.0
+    H = None
     for stride in strides:
         Ps, _ = _points(depth_src, intr, stride)
         Pt, Kt = _points(depth_tgt, intr, stride)
@@ -175,7 +181,7 @@ def icp_point_to_plane(
     E = np.linalg.inv(np.asarray(T_init, float)) @ T
     if np.linalg.norm(E[:3, 3]) > max_step_m or np.degrees(np.linalg.norm(so3_log(E[:3, :3]))) > max_step_deg:
         return IcpResult(np.asarray(T_init, float), False, inliers, rmse, cond, "moved_far")
-    return IcpResult(T, True, inliers, rmse, cond)
+    return IcpResult(T, True, inliers, rmse, cond, hessian=H)
 
 
 def refine_relative_pose(

@@ -210,6 +210,21 @@ class SubmapGraph:
         except ValueError as e:
             raise GraphError(f"loop {i}-{m}: {e}") from e
 
+    def add_loop_pose(self, i: int, m: int, T_i_m: np.ndarray, information: np.ndarray, huber: float = 0.0) -> int:
+        """Loop as a relative pose: ``S(i)^-1 S(m) ~ T_i_m`` (rigid, metres) with a 6x6 ``information``
+        over its right perturbation (rotation, translation), under a Huber kernel ``huber`` (RGB-D ICP
+        loops, :mod:`gsslam.loop.icp_loop`; :mod:`gsslam.factors.relative_pose`)."""
+        for s in (i, m):
+            if not 0 <= s < len(self._subs):
+                raise GraphError(f"loop names submap {s} but only {len(self._subs)} submaps exist")
+        if i == m:
+            raise GraphError("a loop needs two different submaps")
+        try:
+            return self._add(spec("relative_pose", submap_key(i), submap_key(m), np.asarray(T_i_m, float),
+                                  np.asarray(information, float), float(huber), "sim3"))  # fmt: skip
+        except ValueError as e:
+            raise GraphError(f"loop {i}-{m}: {e}") from e
+
     def add_depth_prior(
         self, frame_index: int, uv: np.ndarray, depth: np.ndarray, K: np.ndarray
     ) -> int | None:

@@ -8,6 +8,8 @@ After submap ``i`` has been added to its chain's graph and the graph updated
    passed the drift gate; each goes into the graph as one point factor (``SubmapGraph.add_loop``;
    mono: in submap-i units, noise along / across the rays from the loop's own inlier residual and a
    DCS kernel, :mod:`gsslam.loop.weights`);
+   or, RGB-D with ``loop.icp_refine``, as a relative pose refined by dense ICP of its closest keyframe
+   pair with the ICP information (``SubmapGraph.add_loop_pose``, :mod:`gsslam.loop.icp_loop`);
 3. one iSAM2 update; ``check_loops`` names loops the optimised graph could not satisfy or that
    conflict with the others; they are removed and the graph updated again
    (``update(extra_iterations=10)``);
@@ -60,6 +62,8 @@ class LoopStage:
         self.relocalized: list[dict] = []  # chains placed in the world frame by re-localization
         self._reloc_rng = np.random.default_rng(seed + 7919)
         self._across: dict[tuple[int, int], list] = {}  # (new chain, earlier chain) -> verified loops (mono)
+        self.icp_refined = 0  # RGB-D loops that entered the graph as ICP relative poses
+        self.icp_refused = 0  # ... and those whose ICP was refused (they keep the point factor)
 
     def _detector(self, cid: int):
         if cid not in self._detectors:
@@ -89,6 +93,10 @@ class LoopStage:
 
         loops = self._loops[cid]
         for lc in new:  # mono: each loop weighs by its own inlier residual (loop/weights.py)
+            icp = self._refine_icp(chain, lc)  # RGB-D with loop.icp_refine: dense ICP (loop/icp_loop.py)
+            if icp is not None:
+                loops[graph.add_loop_pose(lc.i, lc.m, icp.T_i_m, icp.information, self.cfg.icp_huber)] = lc
+                continue
             w = loop_weight(lc, self.mode, self.cfg)  # submap-i units (mono) or None (RGB-D)
             if w is None:
                 h_ = graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m)
@@ -109,6 +117,24 @@ class LoopStage:
             graph.update(extra_iterations=10)
         self.corrections += 1
         return True
+
+    def _refine_icp(self, chain, lc):
+        """RGB-D with ``loop.icp_refine``: the loop refined by dense ICP (:class:`IcpLoop`), or None."""
+        if self.mode != "rgbd" or not self.cfg.icp_refine:
+            return None
+        encs = chain.encodings
+        if max(lc.i, lc.m) >= len(encs):
+            return None
+        from gsslam.loop.icp_loop import refine_loop_icp
+
+        icp = refine_loop_icp(lc, encs[lc.i], encs[lc.m], self.cfg)
+        if icp is None:
+            self.icp_refused += 1
+            return None
+        self.icp_refined += 1
+        log.info("loop %d-%d refined by ICP (views %s, %d points, rms %.1f mm, moved %.1f mm / %.2f deg)",
+                 lc.i, lc.m, icp.views, icp.inliers, 1e3 * icp.rmse_m, 1e3 * icp.shift_m, icp.shift_deg)  # fmt: skip
+        return icp
 
     def relocalize(self, chains, cid: int, sid: int) -> np.ndarray | None:
         """``T_world_chain`` for chain ``cid`` from its submap ``sid`` verified against an earlier chain
@@ -241,4 +267,5 @@ class LoopStage:
         out["mean_detect_ms"] = detect_ms / max(1, checked)
         out["in_graph"] = sum(len(v) for v in self._loops.values())
         out["relocalized"] = list(self.relocalized)
+        out["icp_refined"], out["icp_refused"] = self.icp_refined, self.icp_refused
         return out

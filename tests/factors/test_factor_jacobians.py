@@ -219,3 +219,41 @@ def test_keyframe_tie_does_not_prefer_a_world_scale():
         w.insert(S(0), G.compose(Sv))
         w.insert(S(1), gtsam.Pose3(Xk))
         np.testing.assert_allclose(f.unwhitenedError(w), r, atol=1e-9)
+
+
+def _spd(rng, n=6):
+    A = rng.normal(size=(n, n))
+    return A @ A.T + n * np.eye(n)
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_relative_pose_jacobians(group):
+    from gsslam.factors import make_relative_pose_factor
+
+    rng = np.random.default_rng(21)
+    f = make_relative_pose_factor(S(0), S(1), _rigid(rng), _spd(rng) * 100.0, 0.0, group)
+    _assert_jacobians(f, _values(rng, group))
+
+
+def test_relative_pose_is_whitened_by_its_information_and_robust():
+    """Zero at the measured pose; the error is 0.5 d^T Lambda d for a small offset d; Huber caps an outlier."""
+    from gsslam.factors import make_relative_pose_factor
+
+    rng = np.random.default_rng(22)
+    Z, info = _rigid(rng), _spd(rng) * 1e4
+    v = gtsam.Values()
+    A = random_value(rng, "sim3")
+    v.insert(S(0), A)
+    v.insert(S(1), to_gtsam(to_matrix(A) @ Z, "sim3"))
+    plain = make_relative_pose_factor(S(0), S(1), Z, info, 0.0)
+    robust = make_relative_pose_factor(S(0), S(1), Z, info, 3.0)
+    assert plain.error(v) < 1e-12
+    d = rng.normal(size=6) * 1e-4  # (omega, u): right perturbation of the measurement
+    moved = gtsam.Values()
+    moved.insert(S(0), A)
+    moved.insert(S(1), to_gtsam(to_matrix(A) @ Z @ gtsam.Pose3.Expmap(d).matrix(), "sim3"))
+    assert np.isclose(plain.error(moved), 0.5 * d @ info @ d, rtol=1e-3)
+    far = gtsam.Values()
+    far.insert(S(0), A)
+    far.insert(S(1), to_gtsam(to_matrix(A) @ Z @ gtsam.Pose3.Expmap(d * 1000).matrix(), "sim3"))
+    assert robust.error(far) < 0.2 * plain.error(far)  # Huber: linear, not quadratic, far out

@@ -21,6 +21,9 @@ SEQ = {
     # the tracking suite's teddy200_fbf mono row: the playback opened as the runner opens it (with depth: 640 frames)
     "fbfs": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
              dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)),
+    "fbf_misreg": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+            dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0,
+                 misregister=dict(baseline_m=0.025, focal_scale=1.114))),
     "teddy200": ("tum", "../shared/data/rgbd_dataset_freiburg3_teddy", {}),
 }
 
@@ -37,6 +40,7 @@ def main():
     ap.add_argument("seq"); ap.add_argument("--mode", default="mono"); ap.add_argument("--loops", default="on")
     ap.add_argument("--set", action="append", default=[]); ap.add_argument("--tag", default="")
     ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--keep-depth", action="store_true", help="also keep every submap's depth maps (ICP replay)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO if 0 else logging.WARNING)
     logging.getLogger("gsslam.loop").setLevel(logging.INFO); logging.getLogger("gsslam.slam.loop_stage").setLevel(logging.INFO)
@@ -67,6 +71,9 @@ def main():
     state["ts"] = ts; state["gt"] = gt; state["loops"] = pipe.loop_stage.metrics()
     state["chains"] = len(pipe.chains)
     state["loopc"] = [dict(i=lc.i, m=lc.m, X_i=lc.X_i, X_m=lc.X_m, T_i_m=lc.T_i_m, thr=lc.threshold) for d in pipe.loop_stage._loops.values() for lc in d.values()]
+    if a.keep_depth:
+        state["enc_depth"] = [e.points_cam[..., 2].astype(np.float32) for e in ch.encodings]
+        state["enc_intr"] = [e.intrinsics for e in ch.encodings]
     state["enc_depth_med"] = [float(np.nanmedian(e.points_cam[..., 2])) for e in ch.encodings]
     row = dict(seq=a.seq, mode=a.mode, loops=a.loops, set=a.set, tag=a.tag, chains=len(pipe.chains),
                submaps=ch.graph.num_submaps,

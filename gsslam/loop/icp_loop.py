@@ -1,0 +1,125 @@
+"""RGB-D loops refined by dense point-to-plane ICP between two keyframes' depth maps.
+
+A verified RGB-D loop (i, m) carries ``T_i_m`` fitted by RANSAC to a few dozen ORB point pairs; its
+graph factor (``SubmapGraph.add_loop``) weighs every pair with ``graph.loop_sigma_m`` (5 cm, the inlier
+distance). The depth maps of the two submaps know far more: here the closest pair of keyframes under
+the loop's estimate (view ``v`` of submap i, view ``u`` of submap m) is aligned densely by
+:func:`gsslam.frontend.icp.icp_point_to_plane`, started at the RANSAC estimate, and its Gauss-Newton
+normal matrix becomes the information of a relative-pose factor
+(:mod:`gsslam.factors.relative_pose`) on the two submap variables.
+
+Frames: ``A = T_local_cam_i[v]``, ``B = T_local_cam_m[u]``; ICP estimates ``T = T_cv_cu`` (camera u of
+m -> camera v of i) with a left perturbation ``xi = (rho, omega)`` in camera v, so
+``T_i_m = A T B^-1`` and ``A Exp(xi) T B^-1 = T_i_m Exp(Ad_X xi)`` with ``X = B T^-1``: the factor's
+right perturbation is ``delta = Ad_X P xi`` (``P`` puts rotation first), and the information over
+``delta`` is ``(Ad_X P)^-T H (Ad_X P)^-1``.
+
+Dense ICP residuals are not independent (neighbouring pixels share their depth error, and one pair
+of keyframes shares a calibration); the Hessian of N matches is therefore rescaled to
+``loop.icp_effective_points`` matches: ``Lambda = H n_eff / N``. ICP is refused (the loop keeps
+its point factor) when it finds too few matches, when the normal matrix is ill-conditioned (a plane:
+the translation along it is not observed) or when it moves the loop farther than
+``loop.icp_max_shift_m`` / ``ICP_MAX_SHIFT_DEG`` from the RANSAC estimate.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from gsslam.config import LoopConfig
+from gsslam.frontend.icp import icp_point_to_plane
+from gsslam.geometry import invert_T, so3_log
+from gsslam.loop.types import LoopConstraint
+from gsslam.types import SubmapEncoding
+
+log = logging.getLogger(__name__)
+
+ICP_MAX_SHIFT_DEG = 5.0  # ICP refines the verified estimate; a larger turn means it slid away
+LOOP_ICP_STRIDES = (4, 2)  # at point-map resolution (TUM 320x240: 80x60 then 160x120 points), as the encoder
+
+
+@dataclass(frozen=True)
+class IcpLoop:
+    """A loop's relative pose refined by ICP: ``T_i_m`` [4, 4] (submap-m local -> submap-i local),
+    ``information`` [6, 6] over its right perturbation (rotation, translation); ``views`` (v, u);
+    ``inliers`` matched points; ``rmse_m`` their point-to-plane RMS; ``shift_m`` / ``shift_deg`` from
+    the RANSAC estimate."""
+
+    T_i_m: np.ndarray
+    information: np.ndarray
+    views: tuple[int, int]
+    inliers: int
+    rmse_m: float
+    shift_m: float
+    shift_deg: float
+
+
+def closest_views(T_i_m: np.ndarray, L_i: np.ndarray, L_m: np.ndarray, depth_m: float) -> tuple[int, int]:
+    """``(v, u)``: the keyframe of submap i and the one of submap m whose cameras are closest under
+    ``T_i_m`` (``L_i`` [V, 4, 4], ``L_m`` [U, 4, 4] local camera poses); distance = translation plus
+    rotation angle times the scene depth ``depth_m`` (the displacement it causes there)."""
+    C_m = T_i_m[None] @ L_m  # [U, 4, 4] cameras of m in i's local frame
+    dt = np.linalg.norm(L_i[:, None, :3, 3] - C_m[None, :, :3, 3], axis=-1)  # [V, U]
+    Rrel = np.einsum("vji,ujk->vuik", L_i[:, :3, :3], C_m[:, :3, :3])  # R_v^T R_u
+    cos = np.clip((np.trace(Rrel, axis1=2, axis2=3) - 1) / 2, -1.0, 1.0)
+    cost = dt + np.arccos(cos) * depth_m
+    v, u = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    return int(v), int(u)
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:  # [4, 4] rigid -> [6, 6] over (omega, u): Exp(Ad xi) = T Exp(xi) T^-1
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Ad = np.zeros((6, 6))
+    Ad[:3, :3] = R
+    Ad[3:, 3:] = R
+    Ad[3:, :3] = tx @ R
+    return Ad
+
+
+def left_to_right_information(H_left: np.ndarray, T_cv_cu: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """ICP's normal matrix ``H_left`` [6, 6] over (rho, omega), the left perturbation of ``T_cv_cu``,
+    as an information over (omega, u), the right perturbation of ``A T_cv_cu B^-1`` (module docstring)."""
+    P = np.zeros((6, 6))
+    P[:3, 3:] = np.eye(3)  # omega <- xi[3:]
+    P[3:, :3] = np.eye(3)  # rho <- xi[:3]
+    M = adjoint(B @ invert_T(T_cv_cu)) @ P  # delta = M xi
+    Mi = np.linalg.inv(M)
+    info = Mi.T @ H_left @ Mi
+    return 0.5 * (info + info.T)
+
+
+def refine_loop_icp(
+    lc: LoopConstraint, enc_i: SubmapEncoding, enc_m: SubmapEncoding, cfg: LoopConfig
+) -> IcpLoop | None:
+    """Dense ICP of the loop's closest keyframe pair, started at ``lc.T_i_m``; None when refused."""
+    if enc_i.points_cam.shape[1:3] != enc_m.points_cam.shape[1:3]:
+        return None
+    zi = enc_i.depths
+    depth_m = float(np.nanmedian(zi)) if np.isfinite(zi).any() else 1.0
+    v, u = closest_views(lc.T_i_m, enc_i.T_local_cam, enc_m.T_local_cam, depth_m)
+    A, B = enc_i.T_local_cam[v], enc_m.T_local_cam[u]
+    T0 = invert_T(A) @ lc.T_i_m @ B  # camera u of m -> camera v of i
+    res = icp_point_to_plane(
+        enc_m.depths[u], enc_i.depths[v], enc_i.intrinsics, T0, strides=LOOP_ICP_STRIDES,
+        max_step_m=cfg.icp_max_shift_m, max_step_deg=ICP_MAX_SHIFT_DEG,
+    )  # fmt: skip
+    if not res.ok or res.hessian is None:
+        log.debug("loop %d-%d: ICP refused (%s, %d points)", lc.i, lc.m, res.reason, res.inliers)
+        return None
+    T_i_m = A @ res.T_tgt_src @ invert_T(B)
+    info = left_to_right_information(res.hessian, res.T_tgt_src, B)
+    info *= cfg.icp_effective_points / max(res.inliers, 1)
+    D = invert_T(lc.T_i_m) @ T_i_m
+    return IcpLoop(
+        T_i_m=T_i_m,
+        information=info,
+        views=(v, u),
+        inliers=res.inliers,
+        rmse_m=res.rmse_m,
+        shift_m=float(np.linalg.norm(D[:3, 3])),
+        shift_deg=float(np.degrees(np.linalg.norm(so3_log(D[:3, :3])))),
+    )

@@ -1,0 +1,156 @@
+"""RGB-D loops refined by dense ICP (gsslam.loop.icp_loop): a noisy loop is corrected, a plane is refused."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gtsam
+import numpy as np
+import pytest
+
+from gsslam.config import LoopConfig
+from gsslam.datasets.synthetic import SyntheticDataset
+from gsslam.geometry import depth_to_points, invert_T, make_T, so3_exp, so3_log
+from gsslam.loop.icp_loop import adjoint, closest_views, left_to_right_information, refine_loop_icp
+from gsslam.loop.types import LoopConstraint
+from gsslam.types import SubmapEncoding
+
+
+def _encoding(ds, idx: tuple[int, ...], depth_of=None) -> SubmapEncoding:
+    frames = [ds[i] for i in idx]
+    K = ds.intrinsics.K
+    T0 = frames[0].T_world_cam_gt
+    pts = np.stack([depth_to_points(K, f.depth if depth_of is None else depth_of(f)) for f in frames])
+    return SubmapEncoding(
+        frame_indices=list(idx),
+        T_local_cam=np.stack([invert_T(T0) @ f.T_world_cam_gt for f in frames]),
+        points_cam=pts,
+        confidence=np.isfinite(pts[..., 2]).astype(float),
+        intrinsics=ds.intrinsics,
+    )
+
+
+def _loop(T_i_m: np.ndarray) -> LoopConstraint:
+    X = np.random.default_rng(0).normal(size=(30, 3))  # stands in for the RANSAC inliers (not used by ICP)
+    return LoopConstraint(3, 0, X @ T_i_m[:3, :3].T + T_i_m[:3, 3], X, T_i_m, 0.5, 0.8, 0.05)
+
+
+def _err(T, G):
+    E = invert_T(G) @ T
+    return np.linalg.norm(E[:3, 3]), np.degrees(np.linalg.norm(so3_log(E[:3, :3])))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    ds = SyntheticDataset(n_frames=12, width=160, height=120, trajectory="orbit", seed=0)
+    enc_m, enc_i = _encoding(ds, (0, 1, 2)), _encoding(ds, (3, 4, 5))
+    T_true = invert_T(ds[3].T_world_cam_gt) @ ds[0].T_world_cam_gt  # submap-m local -> submap-i local
+    return ds, enc_i, enc_m, T_true
+
+
+def test_icp_corrects_a_noisy_loop(scene):
+    ds, enc_i, enc_m, T_true = scene
+    noisy = T_true @ make_T(so3_exp(np.radians([1.0, -0.8, 0.6])), np.array([0.02, -0.015, 0.01]))
+    assert _err(noisy, T_true)[0] > 0.02
+    out = refine_loop_icp(_loop(noisy), enc_i, enc_m, LoopConfig())
+    assert out is not None
+    dt, dr = _err(out.T_i_m, T_true)
+    assert dt < 2e-3 and dr < 0.1  # measured 0.16 mm / 0.003 deg (start: 27 mm, 1.5 deg) on exact synthetic depth
+    assert 0.02 < out.shift_m < 0.05 and out.inliers > 1000
+    ev = np.linalg.eigvalsh(out.information)
+    assert ev[0] > 0  # positive definite: every direction observed
+    # the information is rescaled to icp_effective_points matches: twice the points, twice the information
+    cfg2 = dataclasses.replace(LoopConfig(), icp_effective_points=2 * LoopConfig().icp_effective_points)
+    out2 = refine_loop_icp(_loop(noisy), enc_i, enc_m, cfg2)
+    np.testing.assert_allclose(out2.information, 2 * out.information, rtol=1e-6)
+
+
+def test_icp_refuses_a_plane(scene):
+    ds, _, _, T_true = scene
+    wall = lambda f: np.full_like(f.depth, 2.0)  # noqa: E731  a wall head-on: sliding along it is free
+    enc_m, enc_i = _encoding(ds, (0, 1, 2), wall), _encoding(ds, (3, 4, 5), wall)
+    assert refine_loop_icp(_loop(T_true), enc_i, enc_m, LoopConfig()) is None
+
+
+def test_closest_views_pick_the_overlapping_pair(scene):
+    _, enc_i, enc_m, T_true = scene
+    # orbit: frame 3 (view 0 of i) is closest to frame 2 (view 2 of m)
+    assert closest_views(T_true, enc_i.T_local_cam, enc_m.T_local_cam, 2.0) == (0, 2)
+
+
+def test_information_moves_to_the_loops_right_perturbation():
+    """delta = M xi to first order: A Exp_left(xi) T B^-1 = (A T B^-1) Exp(delta), checked numerically."""
+    rng = np.random.default_rng(3)
+    rigid = lambda: gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)).matrix()  # noqa: E731
+    A, T, B = rigid(), rigid(), rigid()
+    H = rng.normal(size=(6, 6))
+    H = H @ H.T + np.eye(6)
+    info = left_to_right_information(H, T, B)
+    Z = A @ T @ invert_T(B)
+    xi = rng.normal(size=6) * 1e-6  # (rho, omega): ICP's left perturbation x -> R(omega) x + rho
+    dT = make_T(so3_exp(xi[3:]), xi[:3])
+    delta = gtsam.Pose3.Logmap(gtsam.Pose3(invert_T(Z) @ A @ dT @ T @ invert_T(B)))  # (omega, u)
+    # the same quadratic form: xi^T H xi = delta^T info delta
+    assert np.isclose(xi @ H @ xi, delta @ info @ delta, rtol=1e-4)
+    assert np.allclose(adjoint(np.eye(4)), np.eye(6))
+
+
+def test_icp_loops_close_the_synthetic_revisit_through_the_graph():
+    """The block-room revisit (tests/loop/test_with_submap_graph.py) closed by ICP relative-pose factors
+    (SubmapGraph.add_loop_pose) instead of point factors: every loop is refined and the submap ATE
+    comes out as low as with the point loops (measured 1.82 vs 1.77 cm)."""
+    from gsslam.config import GraphConfig
+    from gsslam.datasets.synthetic import block_room, make_submaps
+    from gsslam.datasets.synthetic.trajectories import outward_circle
+    from gsslam.graph import submap_graph
+    from gsslam.loop import LoopDetector
+    from test_with_submap_graph import _drifted_encodings, _submap_ate
+
+    sm = make_submaps(block_room(seed=1), outward_circle(61, 1.2), mono=False, seed=0)
+    encs = _drifted_encodings(sm, np.random.default_rng(0))
+    cfg, ate, refined = LoopConfig(), {}, 0
+    for use_icp in (False, True):
+        graph = submap_graph.SubmapGraph(GraphConfig(), monocular=False)
+        det = LoopDetector(cfg, mode="rgbd")
+        for s, enc in enumerate(encs):
+            graph.add_submap(enc)
+            graph.update()
+            det.add_submap(s, enc, sm.images[s])
+            found = det.detect(s, {k: graph.submap_pose(k) for k in range(graph.num_submaps)})
+            for lc in found:
+                icp = refine_loop_icp(lc, encs[lc.i], encs[lc.m], cfg) if use_icp else None
+                if icp is None:
+                    graph.add_loop(lc.i, lc.m, lc.X_i, lc.X_m)
+                else:
+                    refined += 1
+                    graph.add_loop_pose(lc.i, lc.m, icp.T_i_m, icp.information, cfg.icp_huber)
+            if found:
+                graph.update()
+        graph.update(extra_iterations=5)
+        ate[use_icp] = _submap_ate(graph, sm)
+    assert refined == len(det.stats.log) >= 2
+    assert ate[True] < 0.025 and ate[True] < 1.1 * ate[False], ate
+
+
+def test_loop_stage_adds_rgbd_loops_as_icp_relative_poses(revisit_rgbd):
+    """With loop.icp_refine the pipeline's loop stage hands RGB-D loops to the graph as ICP relative poses."""
+    from types import SimpleNamespace
+
+    from gsslam.config import GraphConfig
+    from gsslam.graph.submap_graph import SubmapGraph
+    from gsslam.slam.loop_stage import LoopStage
+
+    sm = revisit_rgbd[0]
+    graph = SubmapGraph(GraphConfig(), monocular=False)
+    chain = SimpleNamespace(graph=graph, encodings=[])
+    stage = LoopStage(dataclasses.replace(LoopConfig(), icp_refine=True), "rgbd")
+    for s, (enc, img) in enumerate(zip(sm.encodings, sm.images)):
+        graph.add_submap(enc)
+        chain.encodings.append(enc)
+        graph.update()
+        frames = [SimpleNamespace(index=f, gray=g) for f, g in zip(enc.frame_indices, img)]
+        stage.after_submap(chain, 0, s, enc, frames)
+    kinds = [op[2][0] for op in graph.backend.replay_log() if op[0] == "factor"]
+    m = stage.metrics()
+    assert m["icp_refined"] >= 1 and kinds.count("relative_pose") == m["icp_refined"]
+    assert m["icp_refined"] + m["icp_refused"] == m["accepted"]

@@ -32,6 +32,7 @@ from gsslam.datasets.base import DatasetError
 from gsslam.geometry import invert_T, so3_exp, so3_log
 from gsslam.types import CameraIntrinsics
 
+FLOW_STEP = 4  # px: the grid the pixel motion is computed on (then resized to the image)
 KEYS = ("shutter", "blur_samples", "exposure_amp", "exposure_period", "seed")
 
 
@@ -124,14 +125,21 @@ def motion_blur(
     at both ends; the ``samples`` views between them move along it linearly in time (first order, as
     the resampling itself)."""
     h, w = depth.shape
-    ok = np.isfinite(depth) & (depth > 0)
+    d = depth[::FLOW_STEP, ::FLOW_STEP]  # the motion is smooth: computed on a coarse grid, then resized
+    ok = np.isfinite(d) & (d > 0)
     if not ok.any():
         raise DegradationError("motion blur needs depth; this frame has no valid depth pixel")
-    z = np.where(ok, depth, np.float32(np.median(depth[ok]))).astype(np.float32)
-    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    z = np.where(ok, d, np.float32(np.median(d[ok]))).astype(np.float32)
+    cu, cv = np.meshgrid(
+        np.arange(0, w, FLOW_STEP, dtype=np.float32), np.arange(0, h, FLOW_STEP, dtype=np.float32)
+    )
     fx, fy, cx, cy = (np.float32(a) for a in (intr.fx, intr.fy, intr.cx, intr.cy))
-    X = ((u - cx) / fx * z, (v - cy) / fy * z, z)
-    flows = [_flow(X, T, intr, u, v) for T in ends]
+    X = ((cu - cx) / fx * z, (cv - cy) / fy * z, z)
+    flows = [
+        [cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR) for f in _flow(X, T, intr, cu, cv)]
+        for T in ends
+    ]
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     img = np.ascontiguousarray(image, dtype=np.float32)
     acc = np.zeros_like(img)
     for s in np.linspace(-1.0, 1.0, samples):

@@ -62,6 +62,7 @@ class EncoderConfig:
     colour_focal_min_baseline_m: float = 0.01  # ... or |depth-colour baseline| exceeds this (m)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
+    mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)
 
 
 @dataclass(frozen=True)

@@ -1,12 +1,15 @@
 """Long sequences from short real ones: a base sequence replayed by a pattern, with pauses and jumps.
 
 ``open_dataset("playback", path, base="tum", pattern="fbf", pause_every=0, pause_len=0, jump_every=0,
-jump_len=0, misregister=None, seed=0, n=None, **base_kwargs)`` opens ``open_dataset(base, path,
-**base_kwargs)`` (its first ``n`` frames when ``n`` is given) and plays it by a plan of source frames:
+jump_len=0, misregister=None, seed=0, n=None, stride=1, degrade=None, **base_kwargs)`` opens
+``open_dataset(base, path, **base_kwargs)`` (its first ``n`` frames when ``n`` is given) and plays it
+by a plan of source frames:
 
 - ``pattern``: letters ``f`` (forward ``0..n-1``) and ``b`` (backward ``n-1..0``), concatenated; a
   segment that starts on the frame the previous one ended on skips it (``"fb"`` is ``0..n-1, n-2..0``;
   ``"fbf"`` continues ``1..n-1``), so the camera turns around without a duplicated frame.
+- ``stride``: every ``stride``-th source frame only (``0, s, 2s, ..``, backward the same frames): the
+  camera played ``stride`` times faster, with ``stride`` times the motion per frame (a quicker hand).
 - jumps: every ``jump_every`` played frames, the next ``jump_len`` frames of the plan are dropped (a
   fast motion / frame drop); pauses: every ``pause_every`` played frames, the last frame is repeated
   ``pause_len`` more times (a camera at rest). Jumps are applied first. The phase of both is 0 for
@@ -16,6 +19,9 @@ jump_len=0, misregister=None, seed=0, n=None, **base_kwargs)`` opens ``open_data
 - ground truth: one pose per played frame, the base ground truth *interpolated* at the source frame's
   timestamp (linear translation, geodesic rotation between the two nearest ground-truth rows, which
   must lie within ``gt_max_gap`` seconds; TUM's is 100 Hz motion capture); frames outside it get none.
+- ``degrade``: ``None`` or a dict ``{"shutter", "blur_samples", "exposure_amp", "exposure_period",
+  "seed"}`` (see :mod:`gsslam.datasets.degraded`): motion blur along the ground-truth motion of the
+  played frames (needs depth and ground truth) and auto-exposure swings, applied to the colour image.
 - ``misregister``: ``None`` or a dict ``{"baseline_m", "focal_scale", "report"}`` (see
   :mod:`gsslam.datasets.misregistered`): the depth is replaced by what an unregistered Kinect v1
   depth camera would see, handed out at the colour pixels.
@@ -34,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from gsslam.datasets.base import Dataset, DatasetError, open_dataset
+from gsslam.datasets.degraded import Degradation, apply_exposure, exposure_ends, motion_blur
 from gsslam.datasets.misregistered import Misregistration, misregister_depth
 from gsslam.geometry import so3_exp, so3_log
 from gsslam.types import Frame, Trajectory
@@ -53,6 +60,7 @@ def playback_plan(
     jump_every: int = 0,
     jump_len: int = 0,
     seed: int = 0,
+    stride: int = 1,
 ) -> np.ndarray:  # -> [M] int64 source indices
     """Source frame of every played frame (module docstring)."""
     if n < 2:
@@ -62,9 +70,12 @@ def playback_plan(
     for name, val in (("pause_every", pause_every), ("pause_len", pause_len), ("jump_every", jump_every), ("jump_len", jump_len)):
         if int(val) < 0:
             raise PlaybackError(f"{name} must be >= 0, got {val}")
+    if int(stride) < 1 or (n - 1) // int(stride) < 1:
+        raise PlaybackError(f"stride must be >= 1 and leave at least 2 of the {n} frames, got {stride}")
+    fwd = list(range(0, n, int(stride)))
     plan: list[int] = []
     for c in pattern:
-        seg = list(range(n)) if c == "f" else list(range(n - 1, -1, -1))
+        seg = fwd if c == "f" else fwd[::-1]
         if plan and seg[0] == plan[-1]:
             seg = seg[1:]
         plan.extend(seg)
@@ -130,11 +141,18 @@ class Playback:
         seed: int = 0,
         n: int | None = None,
         gt_max_gap: float = 0.1,
+        stride: int = 1,
+        degrade: dict[str, Any] | Degradation | None = None,
     ) -> None:
         n = len(base) if n is None else min(int(n), len(base))
         self.base = base
         self.n = n
-        self._src = playback_plan(n, pattern, pause_every, pause_len, jump_every, jump_len, seed)
+        self._src = playback_plan(n, pattern, pause_every, pause_len, jump_every, jump_len, seed, stride)
+        self.degradation = (
+            degrade if isinstance(degrade, Degradation) or degrade is None else Degradation.from_dict(degrade)
+        )
+        if self.degradation is not None and self.degradation.blurs and not base.has_depth:
+            raise PlaybackError("degrade.shutter > 0 (motion blur) needs a base sequence with depth")
         self.misregistration = (
             misregister if isinstance(misregister, Misregistration) or misregister is None
             else Misregistration.from_dict(misregister)
@@ -147,7 +165,9 @@ class Playback:
             else self.misregistration.reported_intrinsics(base.intrinsics)
         )
         self.has_depth = base.has_depth
-        self.name = f"{getattr(base, 'name', type(base).__name__)}_{pattern}{n}"
+        self.name = f"{getattr(base, 'name', type(base).__name__)}_{pattern}{n}" + (
+            f"_s{stride}" if stride != 1 else ""
+        )
         base_ts = np.asarray(base.timestamps()[:n], dtype=np.float64)
         self._src_ts = base_ts[self._src]
         dt = float(np.median(np.diff(base_ts))) if n > 1 else 1.0
@@ -159,9 +179,11 @@ class Playback:
         gt = base.ground_truth()
         if gt is not None and len(gt):
             self._gt_ok, self._gt_poses = interpolate_trajectory(gt, self._src_ts, gt_max_gap)
+        if self.degradation is not None and self.degradation.blurs and not self._gt_ok.any():
+            raise PlaybackError("degrade.shutter > 0 (motion blur) needs ground truth for the motion")
         log.info(
-            "playback %s: %d frames from %d (%s), gt on %d, misregister=%s",
-            self.name, len(self), n, pattern, int(self._gt_ok.sum()), self.misregistration,
+            "playback %s: %d frames from %d (%s), gt on %d, misregister=%s, degrade=%s",
+            self.name, len(self), n, pattern, int(self._gt_ok.sum()), self.misregistration, self.degradation,
         )
 
     def __len__(self) -> int:
@@ -179,15 +201,32 @@ class Playback:
             raise IndexError(f"playback frame {index} out of range [0, {len(self)})")
         index = int(index) % len(self)
         f = self.base[self.source_index(index)]
+        image = self._degraded_image(index, f.image, f.depth)
         depth = f.depth
         mr = self.misregistration
         if mr is not None and depth is not None:
             depth = misregister_depth(depth, self._colour_intrinsics, mr.baseline_m, mr.focal_scale)
         gt = self._gt_poses[index].copy() if self._gt_ok[index] else None
         return dataclasses.replace(
-            f, index=index, timestamp=float(self._ts[index]), intrinsics=self.intrinsics, depth=depth,
-            T_world_cam_gt=gt,
+            f, index=index, timestamp=float(self._ts[index]), image=image, intrinsics=self.intrinsics,
+            depth=depth, T_world_cam_gt=gt,
         )
+
+    def _gt_pose(self, index: int) -> np.ndarray | None:
+        if not 0 <= index < len(self) or not self._gt_ok[index]:
+            return None
+        return self._gt_poses[index]
+
+    def _degraded_image(self, index: int, image: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
+        """The colour image of played frame ``index`` as the degradation makes it (the base's otherwise)."""
+        deg = self.degradation
+        if deg is None:
+            return image
+        T_k = self._gt_pose(index)
+        if deg.blurs and T_k is not None and depth is not None:
+            ends = exposure_ends(deg, self._gt_pose(index - 1), T_k, self._gt_pose(index + 1))
+            image = motion_blur(image, depth, self._colour_intrinsics, ends, deg.blur_samples)
+        return apply_exposure(image, deg.gain(index))
 
     def ground_truth(self) -> Trajectory | None:
         if not self._gt_ok.any():
@@ -212,11 +251,13 @@ class PlaybackDataset(Playback):
         seed: int = 0,
         n: int | None = None,
         gt_max_gap: float = 0.1,
+        stride: int = 1,
+        degrade: dict[str, Any] | None = None,
         **base_kwargs: Any,
     ) -> None:
         if base == "playback":
             raise PlaybackError("base cannot be 'playback' itself")
         super().__init__(
             open_dataset(base, path, **base_kwargs), pattern, pause_every, pause_len, jump_every,
-            jump_len, misregister, seed, n, gt_max_gap,
+            jump_len, misregister, seed, n, gt_max_gap, stride=stride, degrade=degrade,
         )

@@ -10,7 +10,9 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
 3. One scale for the submap: with ``shared_depth`` the median ratio shared/triangulated depth
    (so the scale chains across submaps); without, median frame-0 depth = 1.
 4. PnP RANSAC + LM for the other frames against the triangulated frame-0 points, then a small
-   bundle adjustment of all poses and frame-0 inverse depths.
+   bundle adjustment of all poses and frame-0 inverse depths; with ``encoder.mono_shared_depth_sigma
+   > 0`` (off by default: docs/results.md, session 6) the shared depth is a prior on those inverse depths (relative std), so the
+   translations are tied to the previous submap's geometry track by track instead of by one median.
 5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
    baseline; confidence grows with the parallax angle.
 
@@ -165,8 +167,16 @@ class MonoEncoder:
             ok = valid[i].reshape(-1)[lin]
             obs[i, ok] = uv0[ok] + fw[i].reshape(-1, 2)[lin[ok]]
         med_before = float(np.median(X0[:, 2]))
-        T_i_0, rho = bundle_adjust(K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px)
-        g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
+        rho_prior = self._shared_inverse_depth(sd, uv0, intr) if cfg.mono_shared_depth_sigma > 0 else None
+        T_i_0, rho = bundle_adjust(
+            K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px,
+            rho_prior=rho_prior, prior_sigma_rel=cfg.mono_shared_depth_sigma,
+        )  # fmt: skip
+        if rho_prior is None:
+            g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
+        else:
+            g = 1.0  # the shared depth held it, track by track
+            meta["shared_depth_prior"] = int(np.isfinite(rho_prior).sum())
         T_i_0[:, :3, 3] *= g
         T_local = np.stack([invert_T(T) for T in T_i_0])
 
@@ -205,6 +215,17 @@ class MonoEncoder:
             support_points=len(X0),
         )
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
+
+    def _shared_inverse_depth(self, sd, uv0, intr) -> np.ndarray | None:  # -> [N] or None
+        """Inverse shared depth at the frame-0 track pixels (NaN where none); None without enough of it
+        (or for a placeholder plane, which is no geometry)."""
+        if sd is None or _is_constant(sd):
+            return None
+        ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
+        z = sd[ui[:, 1], ui[:, 0]].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rho = np.where(np.isfinite(z) & (z > 0), 1.0 / z, np.nan)
+        return rho if np.isfinite(rho).sum() >= self.cfg.min_inliers else None
 
     # -- dense depth --------------------------------------------------------------------------
     def _dense_depth(self, imgs, fw, bw, valid, T_local, intr):

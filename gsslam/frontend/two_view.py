@@ -168,6 +168,8 @@ def bundle_adjust(
     obs_uv: np.ndarray,  # [F, N, 2] observations (NaN where not seen)
     threshold_px: float,
     max_iterations: int = 20,
+    rho_prior: np.ndarray | None = None,  # [N] inverse depths known from elsewhere (NaN: none)
+    prior_sigma_rel: float = 0.0,  # relative std of rho_prior (0: no prior)
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint refinement of the poses and frame-0 inverse depths: Levenberg-Marquardt with Huber
     weights (IRLS), analytic Jacobians and the Schur complement on the inverse depths.
@@ -177,6 +179,11 @@ def bundle_adjust(
     the reduced camera system is only ``6 (F - 1)`` wide. Frame 0 is exact (the tracks are defined
     there). Returns (T_i_0 [F, 4, 4], inv_depth [N]). The scale is a gauge freedom of this cost; the
     damping keeps it close to the initial one and callers restore it.
+
+    With ``rho_prior`` and ``prior_sigma_rel > 0``, each track that has one also gets the residual
+    ``(rho / rho_prior - 1) / prior_sigma_rel`` (in the units of a 1 px reprojection error, Huber at
+    ``threshold_px`` too): the inverse depths are held to a known depth map, which fixes the scale and
+    ties the translations to it. Diagonal in the depth block: the Schur complement is unchanged.
     """
     F, N = obs_uv.shape[:2]
     seen = np.isfinite(obs_uv).all(-1)  # [F, N]
@@ -191,6 +198,19 @@ def bundle_adjust(
     t = T_i_0[:, :3, 3].copy()
     rho = np.maximum(np.asarray(inv_depth, np.float64).copy(), 1e-6)
     P = 6 * (F - 1)
+    lam_p = np.zeros(N)  # d r_prior / d rho, 0 where no prior
+    if rho_prior is not None and prior_sigma_rel > 0:
+        has = np.isfinite(rho_prior) & (np.asarray(rho_prior) > 0)
+        lam_p[has] = 1.0 / (prior_sigma_rel * np.asarray(rho_prior)[has])
+
+    def prior_res(rho):  # [N]: 0 where no prior
+        return np.where(lam_p > 0, lam_p * rho - 1.0 / prior_sigma_rel, 0.0)
+
+    def total_cost(r, rho):
+        c = _huber_cost(r, threshold_px)
+        if lam_p.any():
+            c += _huber_cost(prior_res(rho)[:, None], threshold_px)
+        return c
 
     def residuals(R, t, rho):
         RX = np.einsum("mij,mj->mi", R[fi], b[pj]) / rho[pj, None]
@@ -200,7 +220,7 @@ def bundle_adjust(
         return r, RX, Xc, z
 
     r, RX, Xc, z = residuals(R, t, rho)
-    cost = _huber_cost(r, threshold_px)
+    cost = total_cost(r, rho)
     lam = 1e-4
     for _ in range(max_iterations):
         w = _huber_weights(r, threshold_px)
@@ -216,6 +236,11 @@ def bundle_adjust(
         gp_m = np.einsum("mki,mk->mi", wJp, r)  # [M, 6]
         Hll = np.bincount(pj, w * np.sum(Jr * Jr, 1), minlength=N)
         gl = np.bincount(pj, w * np.sum(Jr * r, 1), minlength=N)
+        if lam_p.any():
+            rp = prior_res(rho)
+            wp = _huber_weights(rp[:, None], threshold_px)
+            Hll += wp * lam_p**2
+            gl += wp * lam_p * rp
         Hpp = _sum_by(fi - 1, Hpp_m.reshape(-1, 36), F - 1).reshape(F - 1, 6, 6)
         gp = _sum_by(fi - 1, gp_m, F - 1)
         # dense [P, N]: few poses, N tracks; row 6 (i - 1) + c, column j
@@ -243,7 +268,7 @@ def bundle_adjust(
             tn[1:] = t[1:] + d[:, 3:]
             rhon = np.maximum(rho + dl, 1e-6)
             rn, RXn, Xcn, zn = residuals(Rn, tn, rhon)
-            cn = _huber_cost(rn, threshold_px)
+            cn = total_cost(rn, rhon)
             if cn < cost:
                 R, t, rho, r, RX, Xc, z = Rn, tn, rhon, rn, RXn, Xcn, zn
                 improved, step_small = True, cost - cn < 1e-5 * cost

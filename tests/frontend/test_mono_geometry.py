@@ -76,3 +76,28 @@ def test_static_camera_chains_through_placeholder_depth(bundled_tum):
         assert np.abs(e.T_local_cam - np.eye(4)).max() < 1e-2
         assert np.isfinite(e.depths).all() and np.allclose(e.depths, 1.0)
         assert (e.confidence == 0).all()
+
+
+def test_bundle_adjustment_depth_prior_fixes_the_scale():
+    """A known depth map (the shared frame's) as a prior on the inverse depths: the solution takes its
+    scale, translations included, where without it the scale stays where it started (a gauge)."""
+    rng = np.random.default_rng(5)
+    K, T, T0, uv0, z, obs = _problem(rng)
+    start = 0.8  # the initial guess is 20 % small: depths and translations
+    T0[1:, :3, 3] *= start
+    rho0 = 1.0 / (start * z)
+    prior = 1.0 / z * (1.0 + rng.normal(0, 0.05, len(z)))  # a noisy depth map, 5 % per pixel
+    prior[rng.random(len(z)) < 0.3] = np.nan  # and holes
+    prior[rng.random(len(z)) < 0.03] *= 3.0  # and outliers
+    Tb, rho = bundle_adjust(K, T0, uv0, rho0, obs, 1.0, rho_prior=prior, prior_sigma_rel=0.05)
+    Tn, rhon = bundle_adjust(K, T0, uv0, rho0, obs, 1.0)
+
+    def scale(Te):  # LS ratio of the translations to the truth's
+        a, b = Te[1:, :3, 3].ravel(), T[1:, :3, 3].ravel()
+        return float(a @ b / (b @ b))
+
+    assert abs(scale(Tb) - 1.0) < 0.01  # measured 1.0025
+    assert abs(np.median(1.0 / (rho * z)) - 1.0) < 0.01  # measured 1.0036
+    assert abs(scale(Tn) - start) < 0.04  # without the prior: the initial scale (measured 0.780)
+    for i in range(1, len(T)):
+        assert np.degrees(np.linalg.norm(so3_log(Tb[i, :3, :3] @ T[i, :3, :3].T))) < 0.05

@@ -1,9 +1,9 @@
 """Cost and accuracy of the registration feedback on the teddy forward-backward-forward revisit (session 6).
 
-    python3 scripts/registration_cost.py run MODE OUT [KEY=VALUE ...]   # one fbf run (feedback-suite settings,
-        # no final pass, 1 thread): ATE, CPU seconds of the map stage and of the registrations -> OUT.json
-    python3 scripts/registration_cost.py snap MODE OUT.pt N [KEY=VALUE ...]  # the same run, stopped after N
-        # registrations reached Gauss-Newton: their inputs (converged map, keyframe) saved to OUT.pt
+    python3 scripts/registration_cost.py run MODE OUT [KEY=VALUE ...]  # one fbf run (feedback-suite
+        # settings, no final pass, 1 thread): ATE, CPU s of the map stage and the registrations -> OUT.json
+    python3 scripts/registration_cost.py snap MODE OUT.pt N [KEY=VALUE ...]  # the same run, stopped
+        # after N registrations reached Gauss-Newton: their inputs (converged map, keyframe) -> OUT.pt
     python3 scripts/registration_cost.py compare OUT.pt [central warp ...]  # each saved registration again
         # with each mapper.registration_jacobian: CPU seconds, pose difference to the first, gate
 
@@ -66,9 +66,9 @@ def cmd_run(mode: str, out: str, *overrides: str) -> None:
     res = _run(mode, out, list(overrides))
     row = {k: evaluate_run(Path(out)).get(k) for k in ("ate_m", "ate_kf_m", "keyframes")}
     mp = res.metrics.get("mapper") or {}
-    row.update(mode=mode, overrides=list(overrides), cpu_total_s=time.process_time() - c0,
-               cpu_map_s=cpu["map"], cpu_register_s=cpu["register"], registrations_tried=cpu["n_register"],
-               registrations=mp.get("registration_factors"), stage_seconds=res.metrics.get("stage_seconds"))  # fmt: skip
+    row.update(mode=mode, overrides=list(overrides), cpu_total_s=time.process_time() - c0)
+    row.update(cpu_map_s=cpu["map"], cpu_register_s=cpu["register"], registrations_tried=cpu["n_register"])
+    row.update(registrations=mp.get("registration_factors"), stage_seconds=res.metrics.get("stage_seconds"))
     Path(out + ".json").write_text(json.dumps(row, indent=1))
     print(json.dumps(row))
 
@@ -102,8 +102,9 @@ def _gated(st: MapState, kf, info, coverage, sigma) -> bool:  # the gates of reg
     c = st.cfg
     D = np.diag([1.0] * 3 + [kf.median_depth] * 3)
     ev = np.linalg.eigvalsh(D @ info @ D)
-    return not (coverage >= c.registration_min_coverage and sigma <= c.registration_max_residual
-                and ev[0] >= c.registration_min_information and ev[-1] / max(ev[0], 1e-12) <= c.registration_max_condition)  # fmt: skip
+    cond = ev[-1] / max(ev[0], 1e-12)
+    ok = coverage >= c.registration_min_coverage and sigma <= c.registration_max_residual
+    return not (ok and ev[0] >= c.registration_min_information and cond <= c.registration_max_condition)
 
 
 def cmd_compare(path: str, *variants: str) -> None:
@@ -114,8 +115,8 @@ def cmd_compare(path: str, *variants: str) -> None:
         line, ref = [f"kf {s['kf'].index}"], None
         for v in variants:
             cfg = dataclasses.replace(s["cfg"], registration_jacobian=v)
-            st = MapState(cfg=cfg, device=torch.device("cpu"), intrinsics=s["intrinsics"], K=s["K"],
-                          strategy=s["strategy"], model=s["model"], densify_state={}, backend=s["backend"])  # fmt: skip
+            parts = {k: s[k] for k in ("intrinsics", "K", "strategy", "model", "backend")}
+            st = MapState(cfg=cfg, device=torch.device("cpu"), densify_state={}, **parts)
             kf = copy.deepcopy(s["kf"])
             t = time.process_time()
             info, coverage, sigma = reg.gauss_newton(st, kf, s["iterations"])
@@ -125,8 +126,12 @@ def cmd_compare(path: str, *variants: str) -> None:
             kept = not _gated(st, kf, info, coverage, sigma)
             total[v][0] += dt
             total[v][1] += kept
-            line.append(f"{v}: {dt:.2f} s {'kept' if kept else 'gated'} moved {1000 * np.linalg.norm(d[:3]):.1f} mm"
-                        f" (vs first {1000 * np.linalg.norm(d[:3] - ref[:3]):.1f} mm {np.degrees(np.linalg.norm(d[3:] - ref[3:])):.2f} deg)")  # fmt: skip
+            moved, dt_mm = 1000 * np.linalg.norm(d[:3]), 1000 * np.linalg.norm(d[:3] - ref[:3])
+            d_deg = np.degrees(np.linalg.norm(d[3:] - ref[3:]))
+            state = "kept" if kept else "gated"
+            line.append(
+                f"{v}: {dt:.2f} s {state} moved {moved:.1f} mm (vs first {dt_mm:.1f} mm {d_deg:.2f} deg)"
+            )
         print(" | ".join(line), flush=True)
     for v, (t, k) in total.items():
         print(f"{v}: {t:.2f} CPU s, {k} kept")

@@ -11,8 +11,13 @@ from gsslam.mapping.render_jacobian import image_gradient, pixel_motion
 
 def _reproject(K, depth, delta):  # the pixels [H, W, 2] and depths [H, W] of the surface after the move
     H, W = depth.shape
-    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
-    X = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1) * depth[..., None]
+    v, u = torch.meshgrid(
+        torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij"
+    )
+    X = (
+        torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)
+        * depth[..., None]
+    )
     D = se3_delta_matrix(delta)  # T_world_cam' = T_world_cam @ D: camera points become D^-1 X
     Xn = (X - D[:3, 3]) @ D[:3, :3]  # = R^T (X - t), row-wise
     z = Xn[..., 2]
@@ -39,7 +44,9 @@ def test_pixel_motion_is_the_derivative_of_the_reprojection():
 
 
 def test_image_gradient_is_exact_on_cubics_and_one_sided_at_the_border():
-    v, u = torch.meshgrid(torch.arange(7.0, dtype=torch.float64), torch.arange(9.0, dtype=torch.float64), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(7.0, dtype=torch.float64), torch.arange(9.0, dtype=torch.float64), indexing="ij"
+    )
     img = torch.stack([u**3 - 2 * u * v, 3 * v**2, u + v], -1)  # [7, 9, 3]
     gu, gv = image_gradient(img)
     inner = (slice(2, -2), slice(2, -2))

@@ -156,6 +156,7 @@ class MapperConfig:
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
     registration_feedback: bool = True  # new keyframes registered against the converged map -> graph factors
     registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
+    registration_jacobian: str = "central"  # pose Jacobian: "central" differences (13 renders) or "warp" of one render
     registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
     registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum
     registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2

@@ -32,6 +32,7 @@ import torch
 from gsslam.mapping.converged import converged_mask, converged_share, converged_view
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.pose import se3_delta_matrix
+from gsslam.mapping.render_jacobian import warp_jacobians
 from gsslam.mapping.state import MapState, render
 
 _log = logging.getLogger(__name__)
@@ -73,13 +74,45 @@ def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.T
 
 
 def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
-    """Residuals, their Jacobians [., 6] over delta (rho, phi) by central differences, robust sigmas."""
+    """Residuals, their Jacobians [., 6] over delta (rho, phi), robust sigmas: from the warp of one
+    render (``registration_jacobian=warp``, :mod:`gsslam.mapping.render_jacobian`) or by central
+    differences of 12 more renders (``central``)."""
     out = _render_at(state, kf, delta)
     mask = out.alpha > 0.9
     dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
     coverage = float(mask.float().mean())
     if int(mask.sum()) < 16:
         return None, coverage
+    if state.cfg.registration_jacobian == "warp":
+        rc, rd, Jc, Jd = _warp_terms(state, kf, out, mask, dmask)
+    else:
+        rc, rd, Jc, Jd = _central_terms(state, kf, delta, mask, dmask)
+    terms = []
+    for r, J, floor in ((rc, Jc, SIGMA_COLOR_MIN), (rd, Jd, SIGMA_LOG_DEPTH_MIN)):
+        r = r.double().cpu().numpy()
+        if len(r) < 16:
+            continue
+        sigma = max(1.4826 * float(np.median(np.abs(r))), floor)
+        w = np.minimum(1.0, 1.345 * sigma / np.maximum(np.abs(r), 1e-12))  # Huber weights
+        terms.append((r, J, w, sigma))
+    return terms, coverage
+
+
+def _warp_terms(state: MapState, kf: Keyframe, out, mask: torch.Tensor, dmask: torch.Tensor):
+    """Residuals and their Jacobians [M, 6] from the render ``out`` alone (its warp)."""
+    rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
+    ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
+    Jc, Jd = warp_jacobians(out, kf.image, state.K)  # [H, W, 3, 6], [H, W, 6]
+    Jc, Jd = Jc[mask].reshape(-1, 6), Jd[dmask]
+    rd = ld - ld.median() if len(ld) else ld
+    if len(ld) >= 16:  # the median moves with the pixels whose residual is at it: subtract their mean slope
+        near = torch.argsort((ld - ld.median()).abs())[: max(16, len(ld) // 10)]
+        Jd = Jd - Jd[near].mean(0)
+    return rc, rd, Jc.double().cpu().numpy(), Jd.double().cpu().numpy()
+
+
+def _central_terms(state: MapState, kf: Keyframe, delta: torch.Tensor, mask, dmask):
+    """Residuals and their Jacobians [M, 6] by central differences of renders (12 renders)."""
     rc, rd = _residuals(state, kf, delta, mask, dmask)
     steps = [1e-3 * kf.median_depth] * 3 + [1e-3] * 3
     Jc, Jd = [], []
@@ -90,15 +123,7 @@ def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
         cm, dm = _residuals(state, kf, delta - e, mask, dmask)
         Jc.append(((cp - cm) / (2 * h)).double().cpu().numpy())
         Jd.append(((dp - dm) / (2 * h)).double().cpu().numpy())
-    terms = []
-    for r, J, floor in ((rc, Jc, SIGMA_COLOR_MIN), (rd, Jd, SIGMA_LOG_DEPTH_MIN)):
-        r = r.double().cpu().numpy()
-        if len(r) < 16:
-            continue
-        sigma = max(1.4826 * float(np.median(np.abs(r))), floor)
-        w = np.minimum(1.0, 1.345 * sigma / np.maximum(np.abs(r), 1e-12))  # Huber weights
-        terms.append((r, np.stack(J, 1), w, sigma))
-    return terms, coverage
+    return rc, rd, np.stack(Jc, 1), np.stack(Jd, 1)
 
 
 def _normal_equations(terms) -> tuple[np.ndarray, np.ndarray]:  # H [6, 6], g [6] over (rho, phi)

@@ -143,9 +143,11 @@ def test_depth_feedback_adds_priors_that_move_the_estimate(bundled_tum, mapped_r
 
 def test_registration_feedback_adds_factors_that_move_the_estimate(bundled_tum, mapped_run, tmp_path):
     out_off, m_off = mapped_run
-    # on by default, but 36 frames give fewer than feedback_min_age=16 keyframes: nothing converged, none sent
+    # off by default for RGB-D (mapper.registration_feedback_rgbd); on, 36 frames give fewer than
+    # feedback_min_age=16 keyframes: nothing converged, none sent
     assert m_off["mapper"]["registration_factors"] == 0
-    m = _run(bundled_tum, tmp_path, ["mapper.registration_feedback=true", "mapper.feedback_min_age=0"])
+    extra = ["mapper.registration_feedback=true", "mapper.registration_feedback_rgbd=true", "mapper.feedback_min_age=0"]
+    m = _run(bundled_tum, tmp_path, extra)
     mp = m["mapper"]
     assert mp["registration_factors"] >= 1  # measured 1 at 80x60 on 36 frames (most gated: coverage)
     assert mp["registration_factors"] + mp["registrations_gated"] <= mp["keyframes"]

@@ -8,7 +8,8 @@ Per new submap (after the graph update and loop closure):
    T_local_cam``, the point map in submap units, its confidence) and the cross-submap flows that the
    pipeline computed for the graph (GaussianFlow supervision), then runs ``optimize`` on the window.
 3. Feedback (SING3R: "optimized depths/poses feed back into the forming of the next submaps"; both
-   switches are in the mapper config; registration is on by default, the depth paths off; docs/mapping.md):
+   switches are in the mapper config; registration is on by default in mono runs (RGB-D: ``mapper.registration_feedback_rgbd``), the depth
+   paths off; docs/mapping.md):
    :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
    submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);
    :meth:`MapStage.depth_priors` adds depths rendered at the new keyframes' graph poses (from the
@@ -42,11 +43,14 @@ log = logging.getLogger(__name__)
 class MapStage:
     """Owns a :class:`gsslam.mapping.mapper.GaussianMapper` and keeps it in step with the graphs."""
 
-    def __init__(self, cfg: MapperConfig, intrinsics: CameraIntrinsics) -> None:
+    def __init__(self, cfg: MapperConfig, intrinsics: CameraIntrinsics, monocular: bool = False) -> None:
         from gsslam.mapping.mapper import GaussianMapper
 
         self.cfg = cfg
         self.intrinsics = intrinsics
+        # registration against the converged map: mono by default; RGB-D only when asked (its depth and flow
+        # factors are more accurate than a 160 px map's registration: docs/mapping.md)
+        self.register = cfg.registration_feedback and (monocular or cfg.registration_feedback_rgbd)
         self.mapper = GaussianMapper(cfg, intrinsics)
         self._gid: dict[tuple[int, int], int] = {}  # (chain, submap) -> mapper submap id
         self._anchor: dict[int, tuple[int, int, int]] = {}  # keyframe -> (chain, submap, position)
@@ -120,7 +124,7 @@ class MapStage:
                 T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
                 uv, depth, _ = converged_depth(self.mapper.map, T, self.cfg.depth_feedback_points)
                 self.pending_depth[idx] = (self.mapper.full_res_uv(uv), depth)
-        if self.cfg.registration_feedback:
+        if self.register:
             self.pending = self._register(chains, cid, sid, enc, by_index, new_keyframes)
         for idx in new_keyframes:
             pos = list(enc.frame_indices).index(idx)

@@ -99,7 +99,7 @@ class Pipeline:
         if cfg.mapper.enabled:
             from gsslam.slam.map_stage import MapStage  # torch is imported only when the map is on
 
-            self.map_stage = MapStage(cfg.mapper, intrinsics)
+            self.map_stage = MapStage(cfg.mapper, intrinsics, monocular=cfg.mode == "mono")
         self.loop_stage = LoopStage(cfg.loop, cfg.mode, cfg.seed)
         self.stage_seconds = {"loops": 0.0, "map": 0.0}  # wall time inside the frame loop, by stage
         self.plugins: list = []  # gsslam.slam.plugins.Plugin: user factors into the running graph

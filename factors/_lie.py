@@ -148,3 +148,17 @@ def fill(H, i: int, J: np.ndarray) -> None:
     """Write Jacobian block ``J`` into CustomFactor's output list ``H`` (when requested)."""
     if H is not None:
         H[i] = J
+
+
+def sim3_pair_factor(noise, key_a: int, key_b: int, residual) -> gtsam.CustomFactor:
+    """A CustomFactor on two Similarity3 keys from ``residual(S_a, S_b, want_jacobians) -> (r, J_a, J_b)``."""
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        ka, kb = this.keys()
+        S_a, S_b = read_transform(values, ka, "sim3"), read_transform(values, kb, "sim3")
+        r, JA, JB = residual(S_a, S_b, H is not None)
+        fill(H, 0, JA)
+        fill(H, 1, JB)
+        return r
+
+    return gtsam.CustomFactor(noise, [key_a, key_b], error)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ._lie import fill, read_transform
+from ._lie import sim3_pair_factor
 from .points import checked_point_pair, point_residual
 
 
@@ -46,16 +46,10 @@ def make_relative_point_factor(
     """Batched loop-point factor between two Similarity3 variables, residual in key_a's units (3N)."""
     X_a, X_b, w = checked_point_pair("relative point factor", key_a, key_b, X_a, X_b, sigma)
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
-        ka, kb = this.keys()
-        r, JA, JB = relative_point_residual(
-            read_transform(values, ka, "sim3"), read_transform(values, kb, "sim3"), X_a, X_b, w, H is not None
-        )
-        fill(H, 0, JA)
-        fill(H, 1, JB)
-        return r
-
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3 * len(X_a)), [key_a, key_b], error)
+    return sim3_pair_factor(
+        gtsam.noiseModel.Unit.Create(3 * len(X_a)), key_a, key_b,
+        lambda A, B, jac: relative_point_residual(A, B, X_a, X_b, w, jac),
+    )  # fmt: skip
 
 
 __all__ = ["make_relative_point_factor", "relative_point_residual"]

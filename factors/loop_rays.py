@@ -28,7 +28,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ._lie import fill, read_transform
+from ._lie import sim3_pair_factor
 from .errors import FactorInputError
 from .points import checked_point_pair
 
@@ -88,16 +88,7 @@ def make_ray_point_factor(
         dcs = gtsam.noiseModel.mEstimator.DCS.Create(dcs_phi * 3 * len(X_a))
         noise = gtsam.noiseModel.Robust.Create(dcs, noise)
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
-        ka, kb = this.keys()
-        r, JA, JB = ray_point_residual(
-            read_transform(values, ka, "sim3"), read_transform(values, kb, "sim3"), X_a, X_b, W, H is not None
-        )
-        fill(H, 0, JA)
-        fill(H, 1, JB)
-        return r
-
-    return gtsam.CustomFactor(noise, [key_a, key_b], error)
+    return sim3_pair_factor(noise, key_a, key_b, lambda A, B, jac: ray_point_residual(A, B, X_a, X_b, W, jac))
 
 
 __all__ = ["make_ray_point_factor", "ray_point_residual", "ray_whitening"]

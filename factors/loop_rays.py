@@ -28,16 +28,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ._lie import sim3_pair_factor
+from ._lie import sim3_pair_factor, skew_batch
 from .errors import FactorInputError
 from .points import checked_point_pair
-
-
-def _skew(X: np.ndarray) -> np.ndarray:  # [N, 3] -> [N, 3, 3]
-    Z = np.zeros((len(X), 3, 3))
-    Z[:, 0, 1], Z[:, 0, 2], Z[:, 1, 2] = -X[:, 2], X[:, 1], -X[:, 0]
-    Z[:, 1, 0], Z[:, 2, 0], Z[:, 2, 1] = X[:, 2], -X[:, 1], X[:, 0]
-    return Z
 
 
 def ray_whitening(X_a: np.ndarray, sigma_ray: np.ndarray, sigma_perp: np.ndarray) -> np.ndarray:
@@ -59,8 +52,8 @@ def ray_point_residual(A, B, X_a: np.ndarray, X_b: np.ndarray, W: np.ndarray, wa
         return r.ravel(), None, None
     n = len(X_a)
     eye = np.broadcast_to(np.eye(3), (n, 3, 3))
-    Ja = np.concatenate([-_skew(Y), eye, Y[:, :, None]], axis=2)  # [N, 3, 7]
-    Jb = np.concatenate([-_skew(X_b), eye, X_b[:, :, None]], axis=2)
+    Ja = np.concatenate([-skew_batch(Y), eye, Y[:, :, None]], axis=2)  # [N, 3, 7]
+    Jb = np.concatenate([-skew_batch(X_b), eye, X_b[:, :, None]], axis=2)
     Jb = -s_ab * np.einsum("ij,njk->nik", R_ab, Jb)
     JA = np.einsum("nij,njk->nik", W, Ja).reshape(-1, 7)
     return r.ravel(), JA, np.einsum("nij,njk->nik", W, Jb).reshape(-1, 7)

@@ -81,6 +81,14 @@ def rot_to_quat(R: np.ndarray) -> np.ndarray:  # [..., 3, 3] -> [..., 4] (qx, qy
     return out.reshape(R.shape[:-2] + (4,))
 
 
+def interpolate_pose(a: np.ndarray, b: np.ndarray, u: float) -> np.ndarray:  # [4, 4] x2 -> [4, 4]
+    """The pose a fraction ``u`` of the way from ``a`` to ``b`` (geodesic rotation, linear translation)."""
+    T = np.eye(4)
+    T[:3, :3] = a[:3, :3] @ so3_exp(u * so3_log(a[:3, :3].T @ b[:3, :3]))
+    T[:3, 3] = (1.0 - u) * a[:3, 3] + u * b[:3, 3]
+    return T
+
+
 def make_T(R: np.ndarray, t: np.ndarray, s: float = 1.0) -> np.ndarray:  # -> [4, 4]
     T = np.eye(4)
     T[:3, :3] = s * np.asarray(R)

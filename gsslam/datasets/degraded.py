@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from gsslam.datasets.base import DatasetError
-from gsslam.geometry import invert_T, so3_exp, so3_log
+from gsslam.geometry import interpolate_pose, invert_T
 from gsslam.types import CameraIntrinsics
 
 FLOW_STEP = 4  # px: the grid the pixel motion is computed on (then resized to the image)
@@ -80,14 +80,6 @@ class Degradation:
             return 1.0
         phase = 0.0 if self.seed == 0 else float(np.random.default_rng(self.seed).uniform(0.0, 2 * np.pi))
         return float(np.exp(self.exposure_amp * np.sin(2 * np.pi * k / self.exposure_period + phase)))
-
-
-def interpolate_pose(a: np.ndarray, b: np.ndarray, u: float) -> np.ndarray:  # [4, 4] x2 -> [4, 4]
-    """The pose a fraction ``u`` of the way from ``a`` to ``b`` (geodesic rotation, linear translation)."""
-    T = np.eye(4)
-    T[:3, :3] = a[:3, :3] @ so3_exp(u * so3_log(a[:3, :3].T @ b[:3, :3]))
-    T[:3, 3] = (1.0 - u) * a[:3, 3] + u * b[:3, 3]
-    return T
 
 
 def exposure_ends(

@@ -22,7 +22,7 @@ import numpy as np
 
 from gsslam.errors import GsslamError
 from gsslam.frontend.pose_estimation import pnp
-from gsslam.geometry import so3_exp, so3_log
+from gsslam.geometry import interpolate_pose
 from gsslam.types import CameraIntrinsics, Frame
 
 log = logging.getLogger(__name__)
@@ -214,9 +214,5 @@ def interpolate_poses(
             continue
         (ta, a), (tb, b) = known[k - 1], known[k]
         u = 0.0 if tb == ta else (t - ta) / (tb - ta)
-        Ta, Tb = poses[a], poses[b]
-        T = np.eye(4)
-        T[:3, :3] = Ta[:3, :3] @ so3_exp(u * so3_log(Ta[:3, :3].T @ Tb[:3, :3]))
-        T[:3, 3] = (1.0 - u) * Ta[:3, 3] + u * Tb[:3, 3]
-        out[i] = T
+        out[i] = interpolate_pose(poses[a], poses[b], u)
     return out

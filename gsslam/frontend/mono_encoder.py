@@ -11,9 +11,10 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
    (so the scale chains across submaps); without, median frame-0 depth = 1.
 4. PnP RANSAC + LM for the other frames against the triangulated frame-0 points, then a small
    bundle adjustment of all poses and frame-0 inverse depths; with ``encoder.mono_shared_depth_sigma
-   > 0`` the shared depth is a prior on those inverse depths (relative std, divided by the shared
-   depth's own confidence: its parallax in the previous submap; none where that is low), so the
-   translations are tied to the previous submap's geometry track by track instead of by one median.
+   > 0`` (off by default: docs/results.md, sessions 6-7) the shared depth is a prior on those
+   inverse depths (relative std, divided by the shared depth's own confidence: its parallax in the
+   previous submap; none where that is low), so the translations are tied to the previous
+   submap's geometry track by track instead of by one median.
 5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
    baseline; confidence grows with the parallax angle.
 

@@ -169,7 +169,7 @@ def bundle_adjust(
     threshold_px: float,
     max_iterations: int = 20,
     rho_prior: np.ndarray | None = None,  # [N] inverse depths known from elsewhere (NaN: none)
-    prior_sigma_rel: float | np.ndarray = 0.0,  # relative std of rho_prior, one or [N] per track (0 / NaN: none)
+    prior_sigma_rel: float | np.ndarray = 0.0,  # relative std of rho_prior: one, or [N] per track
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint refinement of the poses and frame-0 inverse depths: Levenberg-Marquardt with Huber
     weights (IRLS), analytic Jacobians and the Schur complement on the inverse depths.

@@ -25,7 +25,9 @@ def test_shared_depth_comes_with_its_submaps_confidence():
         if shared_depth is not None:
             kf = pipe.keyframes[frames[0].index]
             made = pipe.chains[kf.chain].encodings[kf.submap]
-            calls.append((shared_confidence, made.confidence[kf.position], keyframe_confidence(pipe.chains, kf)))
+            calls.append(
+                (shared_confidence, made.confidence[kf.position], keyframe_confidence(pipe.chains, kf))
+            )
         return encode(frames, shared_depth=shared_depth, shared_confidence=shared_confidence, **kw)
 
     pipe.encoder.encode = spy

@@ -72,6 +72,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.min_texture_gradient": NONNEG,
     "encoder.mono_dis_preset": ("", "ultrafast", "fast", "medium"),
     "encoder.mono_shared_depth_sigma": Range(0.0, 1.0),
+    "encoder.mono_shared_depth_min_confidence": Range(0.0, 1.0),
     "encoder.rgbd_icp_auto_min_ratio": POS,
     "encoder.rgbd_icp_auto_max_ratio": POS,
     "encoder.colour_focal_frames": _ge(8),

@@ -63,6 +63,8 @@ class EncoderConfig:
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)
+    mono_shared_depth_by_confidence: bool = True  # mono: that std / the shared depth's confidence (parallax / 4 min_parallax)
+    mono_shared_depth_min_confidence: float = 0.5  # mono: no prior where that confidence is below this
 
 
 @dataclass(frozen=True)

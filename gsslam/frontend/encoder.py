@@ -37,13 +37,15 @@ class SubmapEncoder(Protocol):
         frames: list[Frame],
         shared_depth: np.ndarray | None = None,  # [H, W] or [h, w] depth of frames[0], previous submap units
         shared_pose_hint: np.ndarray | None = None,  # [4, 4] unused by the built-in encoders
+        shared_confidence: np.ndarray | None = None,  # [H, W] or [h, w] in [0, 1], of shared_depth
     ) -> SubmapEncoding:
         """Encode K+1 keyframes; ``frames[0]`` is the keyframe shared with the previous submap.
 
         ``shared_depth`` is the refined depth of ``frames[0]`` in the previous submap's units
         (from the mapper or the previous encoding), at full or point-map resolution. Encoders
         use it to ground the new submap in the latest global geometry; for monocular input it
-        also fixes the new submap's scale to the previous one.
+        also fixes the new submap's scale to the previous one. ``shared_confidence`` is the
+        previous submap's confidence in that depth (the mono encoder weights its depth prior by it).
         """
         ...
 

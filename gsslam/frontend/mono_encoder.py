@@ -11,8 +11,10 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
    (so the scale chains across submaps); without, median frame-0 depth = 1.
 4. PnP RANSAC + LM for the other frames against the triangulated frame-0 points, then a small
    bundle adjustment of all poses and frame-0 inverse depths; with ``encoder.mono_shared_depth_sigma
-   > 0`` (off by default: docs/results.md, session 6) the shared depth is a prior on those inverse depths (relative std), so the
-   translations are tied to the previous submap's geometry track by track instead of by one median.
+   > 0`` (off by default: docs/results.md, sessions 6-7) the shared depth is a prior on those
+   inverse depths (relative std, divided by the shared depth's own confidence: its parallax in the
+   previous submap; none where that is low), so the translations are tied to the previous
+   submap's geometry track by track instead of by one median.
 5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
    baseline; confidence grows with the parallax angle.
 
@@ -89,6 +91,7 @@ class MonoEncoder:
         frames: list[Frame],
         shared_depth: np.ndarray | None = None,  # [H, W] or [h, w], previous submap units
         shared_pose_hint: np.ndarray | None = None,
+        shared_confidence: np.ndarray | None = None,  # [H, W] or [h, w] in [0, 1], shared_depth's
     ) -> SubmapEncoding:
         check_frames(frames, need_depth=False)
         cfg = self.cfg
@@ -101,6 +104,9 @@ class MonoEncoder:
             sd = resize_depth(np.asarray(shared_depth, dtype=np.float32), intr)
             with np.errstate(invalid="ignore"):
                 sd[~(sd > 0)] = np.nan
+        sc = None
+        if sd is not None and shared_confidence is not None:
+            sc = resize_depth(np.nan_to_num(np.asarray(shared_confidence, np.float32)), intr)
         fw, bw, valid = self._tracks(imgs)
         meta: dict = {"degenerate": False, "reason": "ok", "pnp_failed": [], "scale_source": "median_depth"}
 
@@ -167,10 +173,12 @@ class MonoEncoder:
             ok = valid[i].reshape(-1)[lin]
             obs[i, ok] = uv0[ok] + fw[i].reshape(-1, 2)[lin[ok]]
         med_before = float(np.median(X0[:, 2]))
-        rho_prior = self._shared_inverse_depth(sd, uv0, intr) if cfg.mono_shared_depth_sigma > 0 else None
+        rho_prior, sigma = None, 0.0
+        if cfg.mono_shared_depth_sigma > 0:
+            rho_prior, sigma = self._shared_depth_prior(sd, sc, uv0, intr)
         T_i_0, rho = bundle_adjust(
             K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px,
-            rho_prior=rho_prior, prior_sigma_rel=cfg.mono_shared_depth_sigma,
+            rho_prior=rho_prior, prior_sigma_rel=sigma,
         )  # fmt: skip
         if rho_prior is None:
             g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
@@ -216,16 +224,26 @@ class MonoEncoder:
         )
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
 
-    def _shared_inverse_depth(self, sd, uv0, intr) -> np.ndarray | None:  # -> [N] or None
-        """Inverse shared depth at the frame-0 track pixels (NaN where none); None without enough of it
-        (or for a placeholder plane, which is no geometry)."""
+    def _shared_depth_prior(self, sd, sc, uv0, intr):  # -> ([N] or None, [N] or float)
+        """The BA prior from the shared depth: inverse depth at the frame-0 track pixels (NaN where none)
+        and its relative std. With the shared depth's confidence ``sc`` (the previous submap's
+        triangulation parallax / (4 min_parallax), :meth:`_dense_depth`) the std is per track,
+        ``sigma / confidence`` (a rotation error d at parallax p shifts a triangulated depth by ~d/p),
+        and pixels below ``mono_shared_depth_min_confidence`` get none: far points seen at low parallax
+        no longer pull the scale. None without enough of it (or for a placeholder plane, no geometry)."""
+        cfg = self.cfg
         if sd is None or _is_constant(sd):
-            return None
+            return None, 0.0
         ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
         z = sd[ui[:, 1], ui[:, 0]].astype(np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
             rho = np.where(np.isfinite(z) & (z > 0), 1.0 / z, np.nan)
-        return rho if np.isfinite(rho).sum() >= self.cfg.min_inliers else None
+        sigma: float | np.ndarray = cfg.mono_shared_depth_sigma
+        if sc is not None and cfg.mono_shared_depth_by_confidence:
+            c = sc[ui[:, 1], ui[:, 0]]
+            sigma = shared_depth_sigmas(c, cfg.mono_shared_depth_sigma, cfg.mono_shared_depth_min_confidence)
+            rho[~np.isfinite(sigma)] = np.nan
+        return (rho, sigma) if np.isfinite(rho).sum() >= cfg.min_inliers else (None, 0.0)
 
     # -- dense depth --------------------------------------------------------------------------
     def _dense_depth(self, imgs, fw, bw, valid, T_local, intr):
@@ -354,6 +372,21 @@ class MonoEncoder:
         )
         meta["depth_stats"] = [robust_depth_stats(p[..., 2]) for p in points]
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
+
+
+def shared_depth_sigmas(
+    confidence: np.ndarray,  # [N] the shared depth's confidence at the tracks, in [0, 1]
+    sigma: float,  # relative std at confidence 1
+    min_confidence: float,
+) -> np.ndarray:  # [N] relative std of the depth prior per track; inf: no prior
+    """``sigma / confidence``, none (inf) below ``min_confidence`` (and at confidence 0).
+
+    The mono confidence is parallax / (4 min_parallax), so this std grows as 1 / parallax: the
+    relative depth error that a fixed angular error gives at that parallax.
+    """
+    c = np.nan_to_num(np.asarray(confidence, np.float64), nan=0.0)
+    ok = (c >= min_confidence) & (c > 0)
+    return np.where(ok, sigma / np.where(ok, c, 1.0), np.inf)
 
 
 def _is_constant(depth: np.ndarray) -> bool:  # [h, w]

@@ -221,6 +221,7 @@ class RGBDEncoder:
         frames: list[Frame],
         shared_depth: np.ndarray | None = None,  # [H, W] or [h, w], metres
         shared_pose_hint: np.ndarray | None = None,
+        shared_confidence: np.ndarray | None = None,  # unused: the sensor's depth has its own
     ) -> SubmapEncoding:
         check_frames(frames, need_depth=True)
         intr = pointmap_intrinsics(frames[0].intrinsics, self.cfg.pointmap_max_side)

@@ -169,7 +169,7 @@ def bundle_adjust(
     threshold_px: float,
     max_iterations: int = 20,
     rho_prior: np.ndarray | None = None,  # [N] inverse depths known from elsewhere (NaN: none)
-    prior_sigma_rel: float = 0.0,  # relative std of rho_prior (0: no prior)
+    prior_sigma_rel: float | np.ndarray = 0.0,  # relative std of rho_prior: one, or [N] per track
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint refinement of the poses and frame-0 inverse depths: Levenberg-Marquardt with Huber
     weights (IRLS), analytic Jacobians and the Schur complement on the inverse depths.
@@ -184,6 +184,8 @@ def bundle_adjust(
     ``(rho / rho_prior - 1) / prior_sigma_rel`` (in the units of a 1 px reprojection error, Huber at
     ``threshold_px`` too): the inverse depths are held to a known depth map, which fixes the scale and
     ties the translations to it. Diagonal in the depth block: the Schur complement is unchanged.
+    ``prior_sigma_rel`` may be per track (the known depth's own uncertainty); a track whose sigma is
+    0, NaN or infinite has no prior.
     """
     F, N = obs_uv.shape[:2]
     seen = np.isfinite(obs_uv).all(-1)  # [F, N]
@@ -199,12 +201,17 @@ def bundle_adjust(
     rho = np.maximum(np.asarray(inv_depth, np.float64).copy(), 1e-6)
     P = 6 * (F - 1)
     lam_p = np.zeros(N)  # d r_prior / d rho, 0 where no prior
-    if rho_prior is not None and prior_sigma_rel > 0:
-        has = np.isfinite(rho_prior) & (np.asarray(rho_prior) > 0)
-        lam_p[has] = 1.0 / (prior_sigma_rel * np.asarray(rho_prior)[has])
+    off_p = np.zeros(N)  # r_prior = lam_p * rho - off_p = (rho / rho_prior - 1) / sigma
+    if rho_prior is not None:
+        rp = np.asarray(rho_prior, np.float64)
+        sig = np.broadcast_to(np.asarray(prior_sigma_rel, np.float64), (N,))
+        with np.errstate(invalid="ignore"):
+            has = np.isfinite(rp) & (rp > 0) & np.isfinite(sig) & (sig > 0)
+        lam_p[has] = 1.0 / (sig[has] * rp[has])
+        off_p[has] = 1.0 / sig[has]
 
     def prior_res(rho):  # [N]: 0 where no prior
-        return np.where(lam_p > 0, lam_p * rho - 1.0 / prior_sigma_rel, 0.0)
+        return lam_p * rho - off_p
 
     def total_cost(r, rho):
         c = _huber_cost(r, threshold_px)

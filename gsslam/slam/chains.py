@@ -55,6 +55,17 @@ class Chain:
         return compose_rigid(self.T_world_chain, T_chain_cam)
 
 
+def keyframe_confidence(chains: list[Chain], kf: ChainKeyframe) -> np.ndarray | None:  # -> [h, w]
+    """The confidence of a keyframe's depth, from the submap that made it (None if that is gone).
+
+    The mono encoder's confidence is the triangulation parallax (:mod:`gsslam.frontend.mono_encoder`):
+    handed on with the keyframe's depth when it is the next submap's shared frame, it says which of
+    those depths may hold the next submap's scale.
+    """
+    encs = chains[kf.chain].encodings if 0 <= kf.chain < len(chains) else []
+    return encs[kf.submap].confidence[kf.position] if kf.submap < len(encs) else None
+
+
 def pack_submap(enc: SubmapEncoding, keyframes: dict[int, ChainKeyframe], added: list[int]) -> None:
     """Keep a submap that all stages have seen compact (:meth:`SubmapEncoding.pack`, exact).
 

@@ -41,7 +41,7 @@ from gsslam.frontend.tracking import (
     sample_depth,
 )
 from gsslam.slam import poses
-from gsslam.slam.chains import Chain, ChainKeyframe, Event, pack_submap
+from gsslam.slam.chains import Chain, ChainKeyframe, Event, keyframe_confidence, pack_submap
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
 from gsslam.slam.plugins import call_plugins
@@ -246,13 +246,14 @@ class Pipeline:
     def _encode_window(self) -> None:
         chain = self.chains[-1]
         frames = self.window
-        shared_depth = None
+        shared_depth = shared_conf = None
         if chain.encodings and frames[0].index in self.keyframes:
             shared_depth = self.keyframes[frames[0].index].depth
+            shared_conf = keyframe_confidence(self.chains, self.keyframes[frames[0].index])
             if self.map_stage is not None and self.cfg.mapper.shared_depth_feedback:
                 shared_depth = self.map_stage.shared_depth(self.chains, frames[0].index, shared_depth)
         try:
-            enc = self.encoder.encode(frames, shared_depth=shared_depth)
+            enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
         except GsslamError as e:
             self.events.append(Event(frames[-1].index, "encoder", str(e)))
             log.warning("submap encoding failed: %s", e)

@@ -101,3 +101,37 @@ def test_bundle_adjustment_depth_prior_fixes_the_scale():
     assert abs(scale(Tn) - start) < 0.04  # without the prior: the initial scale (measured 0.780)
     for i in range(1, len(T)):
         assert np.degrees(np.linalg.norm(so3_log(Tb[i, :3, :3] @ T[i, :3, :3].T))) < 0.05
+
+
+def test_depth_prior_by_confidence_lets_only_good_shared_depths_hold_the_scale():
+    """The shared depth as the previous submap made it: well triangulated (confidence 1) on 40 % of the
+    tracks, at low parallax on the rest (far points: confidence 0.15-0.4), where a small rotation error
+    made those depths 30 % too small, all in one direction. One std for all (the session-6 prior)
+    pulls the submap's scale towards the bad depths; ``sigma / confidence`` with no prior below 0.25
+    keeps it at the good ones'."""
+    from gsslam.frontend.mono_encoder import shared_depth_sigmas
+
+    rng = np.random.default_rng(7)
+    K, T, T0, uv0, z, obs = _problem(rng)
+    start = 0.8
+    T0[1:, :3, 3] *= start
+    rho0 = 1.0 / (start * z)
+    good = rng.random(len(z)) < 0.4
+    conf = np.where(good, 1.0, rng.uniform(0.15, 0.4, len(z)))  # [N] parallax / (4 min_parallax)
+    z_shared = z * np.where(good, 1.0 + rng.normal(0, 0.05, len(z)), 0.7 * (1.0 + rng.normal(0, 0.1, len(z))))
+    prior = 1.0 / z_shared
+    sig = shared_depth_sigmas(conf, 0.1, 0.25)
+    assert np.isinf(sig[conf < 0.25]).all() and np.allclose(sig[good], 0.1)
+    assert np.allclose(sig[(conf >= 0.25) & ~good], 0.1 / conf[(conf >= 0.25) & ~good])
+    Tc, rhoc = bundle_adjust(K, T0, uv0, rho0, obs, 1.0, rho_prior=prior, prior_sigma_rel=sig)
+    Tu, rhou = bundle_adjust(K, T0, uv0, rho0, obs, 1.0, rho_prior=prior, prior_sigma_rel=0.1)
+
+    def scale(Te):  # LS ratio of the translations to the truth's
+        a, b = Te[1:, :3, 3].ravel(), T[1:, :3, 3].ravel()
+        return float(a @ b / (b @ b))
+
+    assert abs(scale(Tc) - 1.0) < 0.035  # measured 0.979 (the kept low-confidence tracks pull a little)
+    assert abs(np.median(1.0 / (rhoc * z)) - 1.0) < 0.035  # measured 0.981
+    assert scale(Tu) < 0.87  # one std for all: measured 0.835, most of the way to the bad depths' 0.7-0.8
+    for i in range(1, len(T)):
+        assert np.degrees(np.linalg.norm(so3_log(Tc[i, :3, :3] @ T[i, :3, :3].T))) < 0.05

@@ -26,9 +26,14 @@ motion (``d u'/d delta``) therefore takes the nearest rendered depth within ``FR
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 
+from gsslam.types import CameraIntrinsics
+
 FRONT_WINDOW = 5  # pixels: the nearest surface within this square moves a pixel (the 5-point stencil's span)
+SUBPIXEL = 0.1  # pixels: the principal-point shift of the renders that give the render's exact slopes
 
 
 def image_gradient(img: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # [H, W, ...] -> (d/du, d/dv)
@@ -81,18 +86,44 @@ def pixel_motion(K: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, to
     return torch.stack([du, dv], dim=-2) * ok[..., None, None], dz
 
 
-def warp_jacobians(out, image: torch.Tensor, K: torch.Tensor, window: int = FRONT_WINDOW):
+def subpixel_intrinsics(intrinsics: CameraIntrinsics, step: float = SUBPIXEL):
+    """The cameras whose renders are the render at ``u + step`` and at ``v + step``: the principal point
+    moved by ``-step`` (a render's pixel ``u`` sees what the original camera sees at ``u - dcx``)."""
+    return (
+        dataclasses.replace(intrinsics, cx=intrinsics.cx - step),
+        dataclasses.replace(intrinsics, cy=intrinsics.cy - step),
+    )
+
+
+def _slopes(out, shifted, step: float):  # -> ((d/du, d/dv) of colour, alpha, log depth)
+    logz = lambda o: torch.log(o.depth.clamp_min(1e-6))  # noqa: E731
+    if shifted is None:  # five-point slopes of the one render
+        return image_gradient(out.color), image_gradient(out.alpha), image_gradient(logz(out))
+    su, sv = shifted  # the render's own slopes: one-sided differences over ``step`` pixels
+    return tuple(
+        ((f(su) - f(out)) / step, (f(sv) - f(out)) / step)
+        for f in (lambda o: o.color, lambda o: o.alpha, logz)
+    )
+
+
+def warp_jacobians(
+    out,
+    image: torch.Tensor,
+    K: torch.Tensor,
+    window: int = FRONT_WINDOW,
+    shifted=None,
+    step: float = SUBPIXEL,
+):
     """Pose Jacobians [H, W, 6] of a render ``out`` (:class:`~gsslam.mapping.rasterize.RenderOutput`):
     of the premultiplied colour residual ``color - image * alpha`` ([H, W, 3, 6]) and of the log depth
     ([H, W, 6]), over the right perturbation (rho, phi); ``image`` [H, W, 3] is the observation. Pixels
-    move with the nearest depth within ``window`` (:func:`front_depth`; 1: their own rendered depth)."""
+    move with the nearest depth within ``window`` (:func:`front_depth`; 1: their own rendered depth).
+    ``shifted``: the renders at the same pose from :func:`subpixel_intrinsics` (``step``), whose
+    differences to ``out`` are the render's exact slopes; None: five-point slopes of ``out``."""
     motion, _ = pixel_motion(K, front_depth(out.depth, window))  # [H, W, 2, 6]
     _, dz = pixel_motion(K, out.depth)  # [H, W, 6]: the depth's own change, at the pixel's depth
-    cu, cv = image_gradient(out.color)  # [H, W, 3] each
-    au, av = image_gradient(out.alpha)  # [H, W] each
+    (cu, cv), (au, av), (zu, zv) = _slopes(out, shifted, step)  # [H, W, 3] / [H, W] each
     cu, cv = cu - image * au[..., None], cv - image * av[..., None]  # only the render moves, not the image
     Jc = -(cu[..., None] * motion[:, :, None, 0] + cv[..., None] * motion[:, :, None, 1])  # [H, W, 3, 6]
-    logz = torch.log(out.depth.clamp_min(1e-6))
-    zu, zv = image_gradient(logz)
     Jd = dz - (zu[..., None] * motion[:, :, 0] + zv[..., None] * motion[:, :, 1])  # [H, W, 6]
     return Jc, Jd

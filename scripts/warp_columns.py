@@ -4,8 +4,10 @@
     python3 scripts/warp_columns.py planes [WINDOW ...]  # synthetic ``planes``: a panel before a wall
     python3 scripts/warp_columns.py snap SNAP.pt [WINDOW ...]  # saved by registration_cost.py snap
 
-For each pixel-motion window (``render_jacobian.front_depth``; 1 = the rendered depth itself, the session-6
-warp) and each pose column (rho x y z, phi x y z), on the pixels the registration uses (alpha > 0.9):
+With the five-point slopes of the one render (``warp``) and with the render's exact slopes from two
+renders with the principal point moved 0.1 px (``subpixel``), for each pixel-motion window
+(``render_jacobian.front_depth``; 1 = the rendered depth itself, the session-6 warp) and each pose
+column (rho x y z, phi x y z), on the pixels the registration uses (alpha > 0.9):
 ``cos`` the cosine between the warp's and the numerical column, ``gain`` the warp's projection on the
 numerical column (<warp, num> / <num, num>: 0.85 = 15 % short); colour residual and log depth apart.
 docs/results.md, "Registration Jacobian, session 7".
@@ -57,20 +59,21 @@ def _fmt(row: dict) -> str:
 def main(which: str, *args: str) -> None:
     torch.set_num_threads(1)
     if which == "snap":
-        cases, windows = snap_cases(args[0]), [int(a) for a in args[1:]] or [1, 5]
-    else:
-        cases = [{"teddy": teddy_case, "planes": planes_case}[which]()]
-        windows = [int(a) for a in args] or [1, 5]
-    rows = {w: [] for w in windows}
+        path, args = args[0], args[1:]
+    windows = [int(a) for a in args] or [1, 5]
+    cases = snap_cases(path) if which == "snap" else [{"teddy": teddy_case, "planes": planes_case}[which]()]
+    rows = {}
     for st, kf in cases:
-        res = columns(st, kf, windows)
-        for w in windows:
-            rows[w].append(res[w])
-            print(f"kf {kf.index} window {w}: {_fmt(res[w])}", flush=True)
-    if len(rows[windows[0]]) > 1:
-        for w in windows:
-            med = {k: np.median([r[k] for r in rows[w]], 0) for k in rows[w][0]}
-            print(f"median of {len(rows[w])}, window {w}: {_fmt(med)}")
+        for subpixel in (False, True):
+            res = columns(st, kf, windows, subpixel)
+            for w in windows:
+                name = f"{'subpixel' if subpixel else 'five-point'} slopes, window {w}"
+                rows.setdefault(name, []).append(res[w])
+                print(f"kf {kf.index} {name}: {_fmt(res[w])}", flush=True)
+    for name, r in rows.items():
+        if len(r) > 1:
+            med = {k: np.median([x[k] for x in r], 0) for k in r[0]}
+            print(f"median of {len(r)}, {name}: {_fmt(med)}")
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from gsslam.config import MapperConfig
 from gsslam.geometry import make_T, so3_exp
 from gsslam.mapping.keyframes import make_keyframe
 from gsslam.mapping.mapper import GaussianMapper
-from gsslam.mapping.render_jacobian import warp_jacobians
+from gsslam.mapping.render_jacobian import subpixel_intrinsics, warp_jacobians
 from gsslam.mapping.state import MapState, render
 from gsslam.types import Frame
 
@@ -21,8 +21,9 @@ def _residuals(st: MapState, kf, delta):  # premultiplied colour residual [h, w,
 
 
 @torch.no_grad()
-def columns(st: MapState, kf, windows=(1, 5)) -> dict[int, dict[str, np.ndarray]]:
-    """{window: {cos_c, gain_c, cos_d, gain_d: [6]}} at ``kf``'s current delta (restored after)."""
+def columns(st: MapState, kf, windows=(1, 5), subpixel: bool = False) -> dict[int, dict[str, np.ndarray]]:
+    """{window: {cos_c, gain_c, cos_d, gain_d: [6]}} at ``kf``'s current delta (restored after);
+    ``subpixel``: the warp with the render's exact slopes (``registration_jacobian=subpixel``)."""
     delta0 = kf.delta.detach().clone()
     _, _, out = _residuals(st, kf, delta0)
     mask = (out.alpha > 0.9) & (out.depth > 1e-3)
@@ -36,9 +37,13 @@ def columns(st: MapState, kf, windows=(1, 5)) -> dict[int, dict[str, np.ndarray]
         num_d.append(((dp - dm) / (2 * h))[mask])
     kf.delta = delta0
     num_c, num_d = torch.stack(num_c, 1).double(), torch.stack(num_d, 1).double()  # [3M, 6], [M, 6]
+    shifted = None
+    if subpixel:
+        T = kf.T_cam_world(st.device)
+        shifted = [render(st, T, intrinsics=c) for c in subpixel_intrinsics(st.intrinsics)]
     res = {}
     for w in windows:
-        Jc, Jd = warp_jacobians(out, kf.image, st.K, window=w)
+        Jc, Jd = warp_jacobians(out, kf.image, st.K, window=w, shifted=shifted)
         row = {}
         for name, a, n in (("c", Jc[mask].reshape(-1, 6).double(), num_c), ("d", Jd[mask].double(), num_d)):
             row["cos_" + name] = ((a * n).sum(0) / (a.norm(dim=0) * n.norm(dim=0)).clamp_min(1e-30)).numpy()

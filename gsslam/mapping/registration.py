@@ -76,8 +76,9 @@ def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.T
 
 def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
     """Residuals, their Jacobians [., 6] over delta (rho, phi), robust sigmas: from the warp of one
-    render (``registration_jacobian=warp``, :mod:`gsslam.mapping.render_jacobian`) or by central
-    differences of 12 more renders (``central``)."""
+    render (``registration_jacobian=warp``, :mod:`gsslam.mapping.render_jacobian`), the warp with the
+    render's exact slopes from 2 more renders (``subpixel``) or by central differences of 12 more renders
+    (``central``)."""
     out = _render_at(state, kf, delta)
     mask = out.alpha > 0.9
     dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)

@@ -158,7 +158,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.pose_init_prior": NONNEG,
     "mapper.num_threads": _ge(0),
     "mapper.registration_iterations": _ge(1),
-    "mapper.registration_jacobian": ("warp", "central"),
+    "mapper.registration_jacobian": ("warp", "subpixel", "central"),
     "mapper.registration_min_coverage": UNIT,
     "mapper.registration_max_residual": POS,
     "mapper.registration_min_information": NONNEG,

@@ -159,7 +159,7 @@ class MapperConfig:
     registration_feedback: bool = True  # new keyframes registered against the converged map -> graph factors (mono runs; RGB-D: + the key below)
     registration_feedback_rgbd: bool = False  # RGB-D runs register too (teddy 200 RGB-D: 0.91 -> 1.34 cm with it; docs/mapping.md)
     registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
-    registration_jacobian: str = "central"  # pose Jacobian: "central" differences (13 renders) or "warp" of one render
+    registration_jacobian: str = "central"  # pose Jacobian: "central" differences (13 renders), "warp" of one render, "subpixel" (warp, exact slopes: 3)
     registration_min_coverage: float = 0.3  # fraction of the keyframe the map must cover (alpha > 0.9)
     registration_max_residual: float = 0.1  # largest robust colour residual spread at the optimum
     registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2

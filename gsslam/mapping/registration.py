@@ -32,7 +32,7 @@ import torch
 from gsslam.mapping.converged import converged_mask, converged_share, converged_view
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.pose import se3_delta_matrix
-from gsslam.mapping.render_jacobian import warp_jacobians
+from gsslam.mapping.render_jacobian import subpixel_intrinsics, warp_jacobians
 from gsslam.mapping.state import MapState, render
 
 _log = logging.getLogger(__name__)
@@ -55,12 +55,13 @@ class Registration:
     converged: float = 1.0  # share of the rendered weight (alpha > 0.9) from converged Gaussians
 
 
-def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor):
-    """Render the map from ``kf``'s pose with ``delta`` (rho, phi) [6] as its refinement; kf is unchanged."""
+def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor, intrinsics=None):
+    """Render the map from ``kf``'s pose with ``delta`` (rho, phi) [6] as its refinement; kf is unchanged.
+    ``intrinsics``: another camera at the mapper resolution (default: the mapper's)."""
     saved = kf.delta
     kf.delta = delta
     try:
-        return render(state, kf.T_cam_world(state.device))
+        return render(state, kf.T_cam_world(state.device), intrinsics=intrinsics)
     finally:
         kf.delta = saved
 
@@ -75,16 +76,20 @@ def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.T
 
 def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
     """Residuals, their Jacobians [., 6] over delta (rho, phi), robust sigmas: from the warp of one
-    render (``registration_jacobian=warp``, :mod:`gsslam.mapping.render_jacobian`) or by central
-    differences of 12 more renders (``central``)."""
+    render (``registration_jacobian=warp``, :mod:`gsslam.mapping.render_jacobian`), the warp with the
+    render's exact slopes from 2 more renders (``subpixel``) or by central differences of 12 more renders
+    (``central``)."""
     out = _render_at(state, kf, delta)
     mask = out.alpha > 0.9
     dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
     coverage = float(mask.float().mean())
     if int(mask.sum()) < 16:
         return None, coverage
-    if state.cfg.registration_jacobian == "warp":
-        rc, rd, Jc, Jd = _warp_terms(state, kf, out, mask, dmask)
+    if state.cfg.registration_jacobian in ("warp", "subpixel"):
+        shifted = None
+        if state.cfg.registration_jacobian == "subpixel":  # the render's exact slopes: 2 more renders
+            shifted = [_render_at(state, kf, delta, c) for c in subpixel_intrinsics(state.intrinsics)]
+        rc, rd, Jc, Jd = _warp_terms(state, kf, out, mask, dmask, shifted)
     else:
         rc, rd, Jc, Jd = _central_terms(state, kf, delta, mask, dmask)
     terms = []
@@ -98,11 +103,12 @@ def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
     return terms, coverage
 
 
-def _warp_terms(state: MapState, kf: Keyframe, out, mask: torch.Tensor, dmask: torch.Tensor):
-    """Residuals and their Jacobians [M, 6] from the render ``out`` alone (its warp)."""
+def _warp_terms(state: MapState, kf: Keyframe, out, mask: torch.Tensor, dmask: torch.Tensor, shifted=None):
+    """Residuals and their Jacobians [M, 6] from the render ``out`` (its warp; ``shifted``: the renders
+    that give its exact slopes, :func:`~gsslam.mapping.render_jacobian.subpixel_intrinsics`)."""
     rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
     ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
-    Jc, Jd = warp_jacobians(out, kf.image, state.K)  # [H, W, 3, 6], [H, W, 6]
+    Jc, Jd = warp_jacobians(out, kf.image, state.K, shifted=shifted)  # [H, W, 3, 6], [H, W, 6]
     Jc, Jd = Jc[mask].reshape(-1, 6), Jd[dmask]
     rd = ld - ld.median() if len(ld) else ld
     if len(ld) >= 16:  # the median moves with the pixels whose residual is at it: subtract their mean slope

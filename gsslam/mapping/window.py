@@ -47,7 +47,7 @@ def optimize_window(state: MapState, iterations: int | None = None) -> dict:
             return old[int(rng.integers(len(old)))]
         return win[-1] if it % 2 == 0 else win[int(rng.integers(len(win)))]
 
-    n_new = sum(1 for i in win if state.steps.get(i, 0) == 0)  # keyframes that joined since the last call
+    n_new = sum(1 for i in win if state.steps.get(i, 0) == 0)  # not yet rendered: joined since the last call
     t0 = time.perf_counter()
     with torch_threads(cfg.num_threads):
         first, last = adam_steps(state, iters, pick, pose_kfs, win)
@@ -64,9 +64,11 @@ def consolidate(state: MapState, iterations: int) -> int:
 
     Each step goes to the older keyframe with the fewest map steps so far (ties in a random order), so
     every keyframe that left the window is visited in turn and the least trained first. Poses are fixed,
-    learning rates are the configured ones x ``final_lr_scale`` x ``consolidate_lr_scale``, and the steps
-    render at the coarse level (:mod:`gsslam.mapping.levels`) unless ``consolidate_coarse`` is off: the
-    end-of-run pass then only has to add the detail. Returns the steps taken (0 without older keyframes).
+    learning rates are the configured ones x ``final_lr_scale`` x ``consolidate_lr_scale``; the steps
+    render at the mapper resolution, or with ``consolidate_coarse`` at the coarse level
+    (:mod:`gsslam.mapping.levels`), which blurs a map that gets no full steps afterwards. Off by default:
+    it cost 0.3-0.8 dB at 640 px against the same steps in the final pass (docs/results.md, "Final pass
+    share, session 7"). Returns the steps taken (0 without older keyframes).
     """
     cfg, order = state.cfg, state.order
     old = order[: -cfg.window] if len(order) > cfg.window else []

@@ -44,7 +44,8 @@ def test_steps_per_new_keyframe_go_to_the_least_trained_old_keyframes(teddy_fram
     fewest = min(old, key=lambda i: before[i])
     assert consolidate(st, 1) == 1
     assert st.steps[fewest] == before[fewest] + 1  # the least trained old keyframe got the step
-    assert {i: st.steps[i] for i in st.order if i != fewest} == {i: before[i] for i in st.order if i != fewest}
+    others = [i for i in st.order if i != fewest]
+    assert [st.steps[i] for i in others] == [before[i] for i in others]
     n = len(old) * 5
     consolidate(st, n)
     spread = [st.steps[i] - before[i] for i in old]

@@ -169,6 +169,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.final_max_iterations": _ge(0),
     "mapper.final_max_share": UNIT,
     "mapper.final_coarse_share": UNIT,
+    "mapper.consolidate_per_keyframe": NONNEG,
+    "mapper.consolidate_lr_scale": POS,
     "loop.skip_recent": _ge(0),
     "loop.min_overlap": UNIT,
     "loop.min_score": UNIT,

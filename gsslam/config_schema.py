@@ -139,6 +139,9 @@ class MapperConfig:
     prune_error: float = 2.0  # mean normalized error that prunes a Gaussian
     min_opacity: float = 0.05  # Gaussians below this opacity are pruned
     revisit_fraction: float = 0.3  # share of optimize steps on a random keyframe older than the window
+    consolidate_per_keyframe: float = 0.0  # per new keyframe, this many steps on older ones during the run (final pass spread out; docs)
+    consolidate_coarse: bool = False  # those steps render at half resolution (mapping/levels.py)
+    consolidate_lr_scale: float = 1.0  # their learning rates: this x final_lr_scale x the lr_* above
     final_iterations_per_keyframe: int = 8  # finalize(): this x keyframes steps at the end (32 before #17)
     final_max_iterations: int = 2000  # finalize(): step cap (0: none); when it binds, worst keyframes first
     final_max_share: float = 0.0  # finalize(): at most this share of the run (0: off; timing-dependent)

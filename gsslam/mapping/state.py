@@ -40,6 +40,7 @@ class MapState:
     order: list[int] = field(default_factory=list)  # keyframe indices in insertion order
     flows: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = field(default_factory=dict)
     # (a, b) -> (flow [h, w, 2] a -> b at the mapper resolution, valid [h, w] bool)
+    steps: dict[int, int] = field(default_factory=dict)  # keyframe index -> map steps rendered at it so far
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     gen: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
     backend: str = "auto"  # the rasterizer every render uses: "c" | "torch" | "gsplat" (resolved once)

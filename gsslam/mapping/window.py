@@ -47,6 +47,7 @@ def optimize_window(state: MapState, iterations: int | None = None) -> dict:
             return old[int(rng.integers(len(old)))]
         return win[-1] if it % 2 == 0 else win[int(rng.integers(len(win)))]
 
+    n_new = sum(1 for i in win if state.steps.get(i, 0) == 0)  # not yet rendered: joined since the last call
     t0 = time.perf_counter()
     with torch_threads(cfg.num_threads):
         first, last = adam_steps(state, iters, pick, pose_kfs, win)
@@ -54,7 +55,36 @@ def optimize_window(state: MapState, iterations: int | None = None) -> dict:
         state.model, state.densify_state, dstats = state.strategy.step(
             state.model, state.densify_state, active=active, generator=state.gen
         )
-    return run_stats(state, iters, t0, first, last, **dstats)
+        extra = consolidate(state, int(round(cfg.consolidate_per_keyframe * n_new)))
+    return run_stats(state, iters + extra, t0, first, last, consolidate_iterations=extra, **dstats)
+
+
+def consolidate(state: MapState, iterations: int) -> int:
+    """The final pass spread over the run: ``iterations`` steps on keyframes older than the window.
+
+    Each step goes to the older keyframe with the fewest map steps so far (ties in a random order), so
+    every keyframe that left the window is visited in turn and the least trained first. Poses are fixed,
+    learning rates are the configured ones x ``final_lr_scale`` x ``consolidate_lr_scale``; the steps
+    render at the mapper resolution, or with ``consolidate_coarse`` at the coarse level
+    (:mod:`gsslam.mapping.levels`), which blurs a map that gets no full steps afterwards. Off by default:
+    it cost 0.3-0.8 dB at 640 px against the same steps in the final pass (docs/results.md, "Final pass
+    share, session 7"). Returns the steps taken (0 without older keyframes).
+    """
+    cfg, order = state.cfg, state.order
+    old = order[: -cfg.window] if len(order) > cfg.window else []
+    if not old or iterations <= 0 or len(state.model) == 0:
+        return 0
+    tie = {i: float(r) for i, r in zip(old, state.rng.random(len(old)))}
+
+    def pick(it: int) -> int:
+        return min(old, key=lambda i: (state.steps.get(i, 0), tie[i]))
+
+    coarse = iterations if cfg.consolidate_coarse else 0
+    adam_steps(
+        state, iterations, pick, [], order, lr_scale=cfg.final_lr_scale * cfg.consolidate_lr_scale,
+        lambda_flow=cfg.final_lambda_flow, coarse_steps=coarse,
+    )  # fmt: skip
+    return iterations
 
 
 def run_stats(state: MapState, iters: int, t0: float, first, last, **extra) -> dict:
@@ -125,6 +155,7 @@ def adam_steps(
         if decay != 1.0:
             for g, lr0 in zip(opt.param_groups, base):
                 g["lr"] = lr0 * gamma ** (it + 1)
+        state.steps[idx] = state.steps.get(idx, 0) + 1
         first = psnr_val if first is None else first
         last = psnr_val
         if observe is not None:

@@ -79,7 +79,7 @@ def _submap_index(key: int) -> int:
     return int(gtsam.Symbol(int(key)).index())
 
 
-class _Frames:
+class SubmapFrames:
     """Frame indices and local poses of every submap; which keyframe a local pose ``L`` names."""
 
     def __init__(self, frame_indices: list[list[int]], T_local_cam: list[np.ndarray], depths=None, Ks=None):
@@ -125,12 +125,12 @@ class _Frames:
         return sorted({f for fi in self.frames for f in fi})
 
 
-def _loop_pair(fr: _Frames, i: int, m: int, T_i_m: np.ndarray, depth: float) -> tuple[int, int]:
+def _loop_pair(fr: SubmapFrames, i: int, m: int, T_i_m: np.ndarray, depth: float) -> tuple[int, int]:
     v, u = closest_views(T_i_m, fr.L[i], fr.L[m], depth)
     return fr.frames[i][v], fr.frames[m][u]
 
 
-def _move(kind: str, args: tuple, kw: dict, fr: _Frames) -> gtsam.NonlinearFactor | None:
+def _move(kind: str, args: tuple, kw: dict, fr: SubmapFrames) -> gtsam.NonlinearFactor | None:
     """The factor of spec ``(kind, args, kw)`` in the keyframe graph (None: not movable)."""
     X = keyframe_key
     if kind in SUBMAP_LEVEL or (kind == "point" and _is_adjacency(args)):  # the same factor, rigid submaps
@@ -193,7 +193,7 @@ def refine_keyframes(
 ) -> RefineResult:
     """Batch LM over one Pose3 per keyframe and per submap (module docstring); returns the refined
     keyframe poses (rigid ``T_chain_cam``)."""
-    fr = _Frames(frame_indices, T_local_cam, depths, Ks)
+    fr = SubmapFrames(frame_indices, T_local_cam, depths, Ks)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([settings.rot_sigma] * 3 + [settings.trans_sigma] * 3))

@@ -112,10 +112,10 @@ def test_without_loops_the_submap_graph_optimum_is_kept():
 
 
 def test_loop_points_go_to_the_keyframe_that_saw_them():
-    from gsslam.slam.keyframe_refine import _Frames  # noqa: the attribution is the module's own helper
+    from gsslam.slam.keyframe_refine import SubmapFrames
 
     encs = chain(error=False)
-    fr = _Frames([e.frame_indices for e in encs], [e.T_local_cam for e in encs],
+    fr = SubmapFrames([e.frame_indices for e in encs], [e.T_local_cam for e in encs],
                  [e.depths for e in encs], [e.intrinsics.K for e in encs])  # fmt: skip
     for j in range(4):
         X = encs[1].points_cam[j].reshape(-1, 3) @ encs[1].T_local_cam[j][:3, :3].T + encs[1].T_local_cam[j][:3, 3]

@@ -99,6 +99,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.wildfire_threshold": NONNEG,
     "graph.batch_max_iterations": _ge(0),
     "graph.flow_effective_points": NONNEG,
+    "graph.keyframe_refine_rot_sigma": POS,
+    "graph.keyframe_refine_trans_sigma": POS,
     "imu.gyro_noise_density": POS,
     "imu.gyro_random_walk": POS,
     "imu.accel_noise_density": POS,

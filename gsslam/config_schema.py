@@ -88,6 +88,9 @@ class GraphConfig:
     relinearize_threshold_velocity: float = 0.1  # IMU velocities (key character v, m/s)
     relinearize_threshold_bias: float = 0.1  # IMU biases (key character b, m/s^2 and rad/s)
     final_batch_refinement: bool = True
+    keyframe_refine: bool = False  # RGB-D: then a batch with one pose per keyframe (corrections inside submaps)
+    keyframe_refine_rot_sigma: float = 0.001  # rad, a keyframe's correction against its submap's local pose
+    keyframe_refine_trans_sigma: float = 0.001  # m
 
     align_rot_sigma: float = 0.01  # rad, rigid submap alignment through the shared frame
     align_trans_sigma: float = 0.02  # previous submap's units

@@ -71,6 +71,7 @@ class Backend:
         self._types: dict[int, str] = {}  # key -> gtsam type name (for typed estimates)
         self._next_handle = 0
         self._names: dict[int, str] = {}  # handle -> user-given name
+        self._specs: dict[int, tuple] = {}  # handle -> factor spec (factors added with one)
         self._estimate: gtsam.Values | None = None
         self.last_result: gtsam.ISAM2Result | None = None
         self.config = None  # the GraphConfig it was made from (from_config), for a replay
@@ -121,6 +122,8 @@ class Backend:
         if name:
             self._names[handle] = str(name)
         self._pending.append(handle)
+        if spec is not None:
+            self._specs[handle] = spec
         if spec is None:
             self._unreplayable = (
                 self._unreplayable or f"{self.describe_factor(handle)} was added without a spec"
@@ -161,6 +164,10 @@ class Backend:
             else:
                 self._pending.remove(h)
         self._log.append(("remove", [int(h) for h in handles]))
+
+    def live_specs(self) -> list[tuple]:
+        """The specs of the live factors (added with a spec, not removed or rejected), in handle order."""
+        return [self._specs[h] for h in sorted(self._factors) if h in self._specs]
 
     def describe_factor(self, handle: int) -> str:
         """``factor 'name' (Type on s0,s1)`` or ``factor #12 (Type on s0,s1)`` (for messages)."""

@@ -44,6 +44,15 @@ class Chain:
     encodings: list[SubmapEncoding] = field(default_factory=list)
     failed: bool = False  # an update threw: no further optimisation of this graph
     in_world: bool = False  # T_world_chain is verified (the first chain, or re-localized against one)
+    # keyframe -> rigid T_chain_cam [4, 4] from the end-of-run keyframe refinement (graph.keyframe_refine);
+    # when set, these are the chain's keyframe poses (gsslam.slam.poses)
+    refined_poses: dict[int, np.ndarray] | None = None
+
+    def keyframe_pose(self, index: int) -> np.ndarray:  # [4, 4] rigid, chain frame
+        """A keyframe's pose in this chain: the refined one when the chain has one, else the graph's."""
+        if self.refined_poses is not None and index in self.refined_poses:
+            return self.refined_poses[index]
+        return self.graph.keyframe_pose(index)
 
     @property
     def scale(self) -> float:

@@ -395,6 +395,12 @@ class Pipeline:
             if progress is not None:
                 progress("batch refinement", len(todo), len(todo))
         self.stage_seconds["batch"] = time.perf_counter() - t0
+        if self.cfg.graph.keyframe_refine:
+            from gsslam.slam.keyframe_refine import refine_chains
+
+            t0 = time.perf_counter()
+            self.events.extend(refine_chains(self.chains, self.cfg.graph, self.monocular))
+            self.stage_seconds["keyframe refine"] = time.perf_counter() - t0
         if self.map_stage is not None:
             t0 = time.perf_counter()
             try:

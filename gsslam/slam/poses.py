@@ -49,7 +49,7 @@ def pose_now(p, index: int) -> np.ndarray | None:
     if kf is not None and not p.chains[kf.chain].failed:
         chain = p.chains[kf.chain]
         try:
-            return chain.world_pose(chain.graph.keyframe_pose(index))
+            return chain.world_pose(chain.keyframe_pose(index))
         except GsslamError:
             pass
     return p.online_poses.get(index)
@@ -79,7 +79,7 @@ def keyframe_poses(p) -> dict[int, np.ndarray]:
     for idx, kf in p.keyframes.items():
         chain = p.chains[kf.chain]
         try:
-            out[idx] = chain.world_pose(chain.graph.keyframe_pose(idx))
+            out[idx] = chain.world_pose(chain.keyframe_pose(idx))
         except GsslamError as e:
             log.warning("keyframe %d has no pose: %s", idx, e)
     for chain in p.chains:  # a chain that never got a submap: its origin keyframe only

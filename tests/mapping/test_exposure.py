@@ -13,7 +13,10 @@ from gsslam.mapping import exposure as X
 from gsslam.mapping.mapper import GaussianMapper
 from gsslam.types import Frame
 
-CFG = MapperConfig(max_side=80, iterations=20, window=4, device="cpu", pose_refinement=False)
+CFG = MapperConfig(
+    max_side=80, iterations=20, window=4, device="cpu", pose_refinement=False, lr_exposure=0.05,
+    lambda_exposure=0.001,
+)  # fmt: skip
 GAIN, BIAS = 0.75, 0.06  # put on the second and fourth keyframe (the first is the gauge)
 
 
@@ -56,11 +59,11 @@ def test_exposure_recovers_a_known_gain_and_bias(teddy_frames):
     for k, f in enumerate(frames[1:], start=1):
         got = _response(m.map.keyframes[f.index].exposure)  # gain and bias trade off; the map they make
         want = truth if k in changed else torch.linspace(0.1, 0.9, 9)[:, None]
-        err = float((got - want).abs().max())
-        print(k, err, torch.exp(m.map.keyframes[f.index].exposure[0]), m.map.keyframes[f.index].exposure[1])
+        # measured: 0.015 / 0.022 / 0.016 at most over the grey levels; the change to find is up to 0.165
+        assert float((got - want).abs().max()) < 0.05, (k, got, want)
     poses = {f.index: f.T_world_cam_gt for f in frames}
     with_x = m.evaluate(iter(frames), poses)
     without = _map(frames, exposure=False).evaluate(iter(frames), poses)
     assert "exposure" in with_x and "exposure" not in without
-    # measured: 25.9 vs 22.9 dB: one colour per Gaussian cannot serve both exposures
-    assert with_x["psnr_keyframes"] > without["psnr_keyframes"] + 1.0
+    # measured: 27.91 vs 25.18 dB: one colour per Gaussian cannot serve both exposures
+    assert with_x["psnr_keyframes"] > without["psnr_keyframes"] + 1.5

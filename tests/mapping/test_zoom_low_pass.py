@@ -46,6 +46,6 @@ def test_zoomed_render_of_a_synthetic_scene_scores_better_with_the_scaled_dilati
     m.map.cfg = dataclasses.replace(m.map.cfg, zoom_low_pass=False)
     off = m.evaluate(iter(frames), poses_d, native=True)
     assert on["psnr_keyframes"] == off["psnr_keyframes"]  # the mapper resolution is untouched
-    # measured: ON vs OFF dB at 320 x 240
-    assert on["psnr_keyframes_native"] > off["psnr_keyframes_native"] + 0.1, (on, off)
+    # measured: 23.14 vs 22.35 dB at 320 x 240 (the 80 px map rendered 4x finer)
+    assert on["psnr_keyframes_native"] > off["psnr_keyframes_native"] + 0.4, (on, off)
     assert np.isfinite(on["psnr_keyframes_native"])

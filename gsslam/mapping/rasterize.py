@@ -213,7 +213,18 @@ def _expand(
 
 
 def _render_gsplat(
-    proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near,
+    proj,
+    means,
+    quats,
+    scales,
+    opacities,
+    colors,
+    T_cam_world,
+    K,
+    width,
+    height,
+    background,
+    near,
     low_pass=LOW_PASS,
 ) -> RenderOutput:
     """CUDA path: gsplat.rasterization for the images; the per-Gaussian outputs come from our projection.

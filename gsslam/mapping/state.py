@@ -61,8 +61,8 @@ def render(
 
     ``intrinsics`` renders another camera instead (e.g. the input's full resolution for evaluation);
     one ``z`` times finer than the mapper's gets the screen-space dilation scaled with it
-    (:func:`zoom_low_pass`). Only the Gaussians in view are projected and composited (``cull``: the same images and gradients,
-    at a cost that follows the view, not the map).
+    (:func:`zoom_low_pass`). Only the Gaussians in view are projected and composited (``cull``: the
+    same images and gradients, at a cost that follows the view, not the map).
     """
     m = state.model if model is None else model
     if intrinsics is not None:

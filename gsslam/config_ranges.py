@@ -133,6 +133,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.lr_opacity": NONNEG,
     "mapper.lr_scales": NONNEG,
     "mapper.lr_quats": NONNEG,
+    "mapper.lr_exposure": NONNEG,
+    "mapper.lambda_exposure": NONNEG,
     "mapper.lr_pose": NONNEG,
     "mapper.pose_iterations": _ge(0),
     "mapper.lr_pose_init": NONNEG,

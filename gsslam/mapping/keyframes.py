@@ -38,6 +38,7 @@ class Keyframe:
     delta: torch.Tensor  # [6] se(3) right-perturbation (rho, phi), optimized
     anchor: torch.Tensor  # [6] where the pose prior pulls delta: 0, or the accepted pose-only refinement
     depth_weight: torch.Tensor | None = None  # [h, w] confidence of ``depth`` in [0, 1] (None: all 1)
+    exposure: torch.Tensor | None = None  # [2, 3] log gain, bias per channel; None: identity
 
     @property
     def median_depth(self) -> float:  # world units; sets the translation scale of the pose prior

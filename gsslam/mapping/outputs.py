@@ -13,6 +13,7 @@ from gsslam.eval.image_metrics import psnr
 from gsslam.imaging import ssim as ssim_torch
 from gsslam.io.atomic import atomic_path
 from gsslam.io.ply import GaussianPly, write_ply
+from gsslam.mapping import exposure as X
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.state import MapState, render_keyframe, render_pose
 from gsslam.types import CameraIntrinsics, Frame
@@ -59,6 +60,20 @@ def depth_colormap(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [H, W
     return dc
 
 
+def frame_exposure(state: MapState, index: int) -> torch.Tensor | None:
+    """The exposure [2, 3] a frame is scored through: a keyframe's own, else the nearest keyframe's
+    (:func:`gsslam.mapping.exposure.nearest_exposure`; no pixel of the frame is used); None: identity."""
+    if index in state.keyframes:
+        return state.keyframes[index].exposure
+    known = {i: kf.exposure for i, kf in state.keyframes.items() if kf.exposure is not None}
+    return X.nearest_exposure(index, known)
+
+
+def _colour(out, exposure: torch.Tensor | None) -> np.ndarray:  # -> [H, W, 3] in [0, 1]
+    with torch.no_grad():
+        return X.apply(out.color, exposure).clamp(0, 1).cpu().numpy()
+
+
 def evaluate_map(
     state: MapState,
     frames: Iterable[Frame],
@@ -75,6 +90,8 @@ def evaluate_map(
     generator keeps memory flat); ``progress(k)`` after the k-th frame. ``native_only``: the frames
     evaluated at the input resolution too (default all; a 640x480 render costs ~16x a 160x120 one).
     ``per_frame_psnr`` / ``per_frame_psnr_native``: frame index -> PSNR at each resolution.
+    With per-keyframe exposures (``mapper.exposure``) a keyframe is rendered through its own exposure
+    and a held-out frame through the nearest keyframe's (:func:`frame_exposure`); ``exposure`` says so.
     """
     w, h = state.intrinsics.width, state.intrinsics.height
     res: dict[str, list] = {"keyframes": [], "other": [], "keyframes_native": [], "other_native": []}
@@ -83,13 +100,14 @@ def evaluate_map(
         if fr.index in poses:
             kind = "keyframes" if fr.index in state.keyframes else "other"
             image = fr.image.astype(np.float32)
-            ren = render_pose(state, poses[fr.index]).color.clamp(0, 1).cpu().numpy()
+            expo = frame_exposure(state, fr.index)
+            ren = _colour(render_pose(state, poses[fr.index]), expo)
             img = _resize_image(image, w, h)
             p = psnr(ren, img)
             per_frame[fr.index] = p
             res[kind].append((p, ssim_float32(ren, img)))
             if native is not None and (native_only is None or fr.index in native_only):
-                ren = render_pose(state, poses[fr.index], native).color.clamp(0, 1).cpu().numpy()
+                ren = _colour(render_pose(state, poses[fr.index], native), expo)
                 img = _resize_image(image, native.width, native.height)
                 p_native = psnr(ren, img)
                 per_frame_native[fr.index] = p_native
@@ -97,6 +115,8 @@ def evaluate_map(
         if progress is not None:
             progress(k + 1)
     stats: dict = {"per_frame_psnr": per_frame, "width": w, "height": h}
+    if any(kf.exposure is not None for kf in state.keyframes.values()):
+        stats["exposure"] = "keyframes: their own; held-out frames: the nearest keyframe's"
     if native is not None:
         stats.update(
             native_width=native.width, native_height=native.height, per_frame_psnr_native=per_frame_native
@@ -135,7 +155,7 @@ def keyframe_panels(state: MapState, out_dir: str | Path, n: int = 4) -> list[Pa
     for idx in picks:
         out = render_keyframe(state, idx)
         img = (state.keyframe(idx).image.cpu().numpy() * 255).astype(np.uint8)
-        ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+        ren = (_colour(out, frame_exposure(state, idx)) * 255).astype(np.uint8)
         dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
         p = out_dir / f"keyframe_{idx:06d}.png"
         with atomic_path(p) as tmp:
@@ -152,7 +172,7 @@ def native_panel(
     img = (_resize_image(frame.image.astype(np.float32), intrinsics.width, intrinsics.height) * 255).astype(
         np.uint8
     )
-    ren = (out.color.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+    ren = (_colour(out, frame_exposure(state, frame.index)) * 255).astype(np.uint8)
     dc = depth_colormap(out.depth.cpu().numpy(), out.alpha.cpu().numpy() > 0.5)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -110,8 +110,13 @@ def project_gaussians(
     width: int,
     height: int,
     near: float = 0.01,
+    low_pass: float = LOW_PASS,
 ) -> Projected:
-    """EWA projection: ``Sigma2d = J W Sigma W^T J^T + 0.3 I`` with the 3DGS clamp of ``x/z``."""
+    """EWA projection: ``Sigma2d = J W Sigma W^T J^T + low_pass I`` with the 3DGS clamp of ``x/z``.
+
+    ``low_pass`` (px^2, default the 3DGS 0.3) is the screen-space dilation; a map fitted at a coarser
+    resolution keeps its look when rendered ``z`` times finer with ``low_pass * z^2`` (docs/rasterizer.md).
+    """
     dtype = means.dtype
     T = T_cam_world.to(dtype)
     Kd = K.to(dtype)
@@ -138,9 +143,9 @@ def project_gaussians(
     # Sigma2d = (J W R S)(J W R S)^T; rows of A = J W R S:
     A0 = _row_times(jw0, R_g) * scales  # [N, 3]
     A1 = _row_times(jw1, R_g) * scales  # [N, 3]
-    a = (A0 * A0).sum(-1) + LOW_PASS
+    a = (A0 * A0).sum(-1) + low_pass
     b = (A0 * A1).sum(-1)
-    c = (A1 * A1).sum(-1) + LOW_PASS
+    c = (A1 * A1).sum(-1) + low_pass
     cov2d = torch.stack([a, b, b, c], dim=-1).reshape(-1, 2, 2)
     det = (a * c - b * b).clamp_min(1e-12)
     conics = torch.stack([c / det, -b / det, a / det], dim=-1)
@@ -175,13 +180,14 @@ def in_view(
     width: int,
     height: int,
     near: float = 0.01,
+    low_pass: float = LOW_PASS,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Conservative frustum test: ``(keep [N] bool, centres [N, 2] px, z [N])``, no gradients.
 
     ``keep`` is False only for Gaussians that :func:`project_gaussians` would give ``radii == 0``
     (behind ``near``, or off the image by more than their radius), so rendering only the kept ones
     draws the same image. The radius is bounded without the rotation: the 2D covariance's trace is at
-    most ``(f s_max / z)^2 (1 + lim^2) + 0.3`` per axis (``lim`` the clamp of ``x/z``), and the largest
+    most ``(f s_max / z)^2 (1 + lim^2) + low_pass`` per axis (``lim`` the clamp of ``x/z``), and the largest
     eigenvalue at most the trace. ``centres`` and ``z`` are the projection of every centre (the values
     :func:`project_gaussians` returns for them).
     """
@@ -197,7 +203,7 @@ def in_view(
     lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _tan_limits(fx, fy, cx, cy, width, height)
     lim_x, lim_y = torch.maximum(lim_x_pos, lim_x_neg), torch.maximum(lim_y_pos, lim_y_neg)
     s = scales.detach().amax(dim=-1) * inv_z  # [N]
-    trace = s * s * (fx * fx * (1 + lim_x * lim_x) + fy * fy * (1 + lim_y * lim_y)) + 2 * LOW_PASS
+    trace = s * s * (fx * fx * (1 + lim_x * lim_x) + fy * fy * (1 + lim_y * lim_y)) + 2 * low_pass
     r = SIGMA_CUTOFF * torch.sqrt(trace) * 1.001 + 1.0  # px, >= the radius project_gaussians finds
     keep = front & (u + r >= 0) & (u - r <= width - 1) & (v + r >= 0) & (v - r <= height - 1)
     return keep, torch.stack([u, v], dim=-1), z

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from gsslam.mapping.projection import RasterizeError, check_inputs, in_view, project_gaussians
+from gsslam.mapping.projection import LOW_PASS, RasterizeError, check_inputs, in_view, project_gaussians
 from gsslam.mapping.rasterize_reference import composite_reference
 
 _log = logging.getLogger(__name__)
@@ -90,7 +90,7 @@ class RenderOutput:
     alpha: Tensor  # [H, W] accumulated opacity sum(w_i)
     normal: Tensor  # [H, W, 3] camera-frame sum(w_i n_i) (not normalized; divide by alpha if needed)
     means2d: Tensor  # [N, 2] projected centres (px), differentiable
-    cov2d: Tensor  # [N, 2, 2] projected 2D covariances (px^2, incl. the 0.3 px^2 low-pass)
+    cov2d: Tensor  # [N, 2, 2] projected 2D covariances (px^2, incl. the low-pass, 0.3 px^2 by default)
     depths: Tensor  # [N] camera z of the centres
     radii: Tensor  # [N] int pixel radius (0 = not visible)
 
@@ -109,6 +109,7 @@ def render(
     near: float = 0.01,
     backend: str = "auto",
     cull: bool = False,
+    low_pass: float = LOW_PASS,
 ) -> RenderOutput:
     """Render colour, depth, alpha and normals of a Gaussian map seen from ``T_cam_world``.
 
@@ -120,6 +121,8 @@ def render(
     those of the full render; of the per-Gaussian outputs, culled Gaussians get ``radii`` 0 (as
     without culling), ``means2d`` / ``depths`` without gradient and a zero ``cov2d``. The cost of a
     step then follows the Gaussians in view, not the size of the map.
+
+    ``low_pass``: the screen-space dilation (px^2) added to every projected covariance (3DGS: 0.3).
     """
     if backend not in BACKENDS:
         raise RasterizeError(f"unknown rasterizer backend {backend!r}; choose one of {', '.join(BACKENDS)}")
@@ -128,20 +131,21 @@ def render(
     check_inputs(means, quats, scales, opacities, colors, T_cam_world, K, width, height)
     width, height = int(width), int(height)
     if cull and not means.is_cuda:
-        keep, centres, z = in_view(means, scales, T_cam_world, K, width, height, near)
+        keep, centres, z = in_view(means, scales, T_cam_world, K, width, height, near, low_pass)
         if not bool(keep.all()):
             idx = keep.nonzero()[:, 0]
             sub = render(
                 means[idx], quats[idx], scales[idx], opacities[idx], colors[idx], T_cam_world, K,
-                width, height, background, near, backend,
+                width, height, background, near, backend, low_pass=low_pass,
             )  # fmt: skip
             return _expand(sub, idx, centres, z)
-    proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near)
+    proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near, low_pass)
     if backend == "gsplat" or (backend == "auto" and means.is_cuda and _gsplat_available()):
         _USED.add("gsplat")
         return _render_gsplat(
-            proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near
-        )
+            proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near,
+            low_pass,
+        )  # fmt: skip
     features = torch.cat([colors.to(means.dtype), proj.depths[:, None], proj.normals], dim=-1)  # [N, 7]
     args = (
         proj.means2d,
@@ -209,7 +213,19 @@ def _expand(
 
 
 def _render_gsplat(
-    proj, means, quats, scales, opacities, colors, T_cam_world, K, width, height, background, near
+    proj,
+    means,
+    quats,
+    scales,
+    opacities,
+    colors,
+    T_cam_world,
+    K,
+    width,
+    height,
+    background,
+    near,
+    low_pass=LOW_PASS,
 ) -> RenderOutput:
     """CUDA path: gsplat.rasterization for the images; the per-Gaussian outputs come from our projection.
 
@@ -242,7 +258,7 @@ def _render_gsplat(
         width,
         height,
         near_plane=near,
-        eps2d=0.3,
+        eps2d=low_pass,
         packed=False,
         render_mode="RGB+ED",
         rasterize_mode="classic",

@@ -20,6 +20,7 @@ from gsslam.geometry import split_sim3
 from gsslam.mapping.densify import DensifyStrategy
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import Keyframe, MapperError
+from gsslam.mapping.projection import LOW_PASS
 from gsslam.mapping.rasterize import RenderOutput
 from gsslam.mapping.rasterize import render as rasterize
 from gsslam.types import CameraIntrinsics
@@ -59,9 +60,10 @@ def render(
 ) -> RenderOutput:
     """Render ``model`` (default: the state's) from ``T_cam_world`` at the mapper resolution.
 
-    ``intrinsics`` renders another camera instead (e.g. the input's full resolution for evaluation).
-    Only the Gaussians in view are projected and composited (``cull``: the same images and gradients,
-    at a cost that follows the view, not the map).
+    ``intrinsics`` renders another camera instead (e.g. the input's full resolution for evaluation);
+    one ``z`` times finer than the mapper's gets the screen-space dilation scaled with it
+    (:func:`zoom_low_pass`). Only the Gaussians in view are projected and composited (``cull``: the
+    same images and gradients, at a cost that follows the view, not the map).
     """
     m = state.model if model is None else model
     if intrinsics is not None:
@@ -69,6 +71,7 @@ def render(
         return rasterize(
             m.means, m.quats, m.scales, m.opacities, m.rgb, T_cam_world, K,
             intrinsics.width, intrinsics.height, backend=state.backend, cull=True,
+            low_pass=zoom_low_pass(state, intrinsics),
         )  # fmt: skip
     return rasterize(
         m.means,
@@ -83,6 +86,20 @@ def render(
         backend=state.backend,
         cull=True,
     )
+
+
+def zoom_low_pass(state: MapState, intrinsics: CameraIntrinsics) -> float:
+    """The screen dilation (px^2) for rendering at ``intrinsics``: ``0.3 z^2`` for a camera ``z`` times
+    finer than the mapper's (``z = fx / fx_mapper`` > 1) when ``mapper.zoom_low_pass`` is on, else 0.3.
+
+    The map was fitted with 0.3 px^2 at the mapper's pixels; rendered 4x finer with the same 0.3 px^2
+    its small Gaussians turn into sharp, aliased splats (Mip-Splatting's zoom-in artefact). Scaling the
+    dilation keeps each splat's footprint in the scene what it was in training (docs/mapping.md).
+    """
+    zoom = float(intrinsics.fx) / float(state.intrinsics.fx)
+    if not state.cfg.zoom_low_pass or zoom <= 1.0:
+        return LOW_PASS
+    return LOW_PASS * zoom * zoom
 
 
 def render_pose(

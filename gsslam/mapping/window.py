@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 import torch
 
+from gsslam.mapping import exposure as X
 from gsslam.mapping import losses as L
 from gsslam.mapping.adam import Adam
 from gsslam.mapping.keyframes import Keyframe, torch_threads
@@ -140,6 +141,12 @@ def adam_steps(
         kfs[i].delta = kfs[i].delta.detach().clone().requires_grad_(True)
     if pose_kfs:
         groups.append({"params": [kfs[i].delta for i in pose_kfs], "lr": lr_pose or cfg.lr_pose})
+    exposed = exposure_keyframes(state)
+    for i in exposed:
+        e = kfs[i].exposure
+        kfs[i].exposure = (X.identity(state.device) if e is None else e.detach().clone()).requires_grad_(True)
+    if exposed:
+        groups.append({"params": [kfs[i].exposure for i in exposed], "lr": lr_scale * cfg.lr_exposure})
     opt = Adam(groups, eps=1e-15)  # torch.optim.Adam's arithmetic, without importing torch._dynamo
     base = [g["lr"] for g in opt.param_groups]
     gamma = decay ** (1.0 / max(1, iters - 1))
@@ -162,8 +169,15 @@ def adam_steps(
             observe(it, idx, psnr_val)
     for i in pose_kfs:
         kfs[i].delta = kfs[i].delta.detach()
+    for i in exposed:
+        kfs[i].exposure = kfs[i].exposure.detach()
     state.model = state.model.detached()
     return first, last
+
+
+def exposure_keyframes(state: MapState) -> list[int]:
+    """The keyframes whose exposure the steps optimise: all but the first (the gauge), when enabled."""
+    return list(state.order[1:]) if state.cfg.exposure else []
 
 
 def step_loss(
@@ -191,7 +205,10 @@ def step_loss(
         kf = coarse_keyframe(kf, intr.width, intr.height)
         w_flow = 0.0
     out = render(state, kf.T_cam_world(dev, with_delta=True), intrinsics=intr)
-    loss = L.color_loss(out.color, kf.image, cfg.lambda_ssim)
+    color = X.apply(out.color, kf.exposure)  # [h, w, 3] the render through the keyframe's exposure
+    loss = L.color_loss(color, kf.image, cfg.lambda_ssim)
+    if kf.exposure is not None and kf.exposure.requires_grad:
+        loss = loss + cfg.lambda_exposure * X.regularizer(kf.exposure)
     unit = kf.median_depth if cfg.depth_scale_free else 1.0
     loss = loss + cfg.lambda_depth * L.inverse_depth_l1(
         out.depth, kf.depth, weight=kf.depth_weight, unit=unit
@@ -224,15 +241,15 @@ def step_loss(
         loss = loss + w_flow * fl
         err = e if err is None else torch.where(torch.isfinite(e), e, err)
     if coarse:
-        return loss, float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
+        return loss, float(L.psnr(color.detach().clamp(0, 1), kf.image))
     with torch.no_grad():
         if err is None:  # photometric analogue of the normalized error, at the Gaussians' pixels
-            diff = (out.color - kf.image).abs().mean(-1) / (kf.image.mean(-1) + 0.1)
+            diff = (color - kf.image).abs().mean(-1) / (kf.image.mean(-1) + 0.1)
             e = L.sample_image(diff[..., None], out.means2d.detach())[:, 0]
             err = torch.where(vis, e, torch.full_like(e, float("nan")))
         radius = torch.where(vis, out.radii.float(), torch.zeros_like(err))
         state.strategy.update_state(state.densify_state, err, radius)
-        psnr_val = float(L.psnr(out.color.detach().clamp(0, 1), kf.image))
+        psnr_val = float(L.psnr(color.detach().clamp(0, 1), kf.image))
     return loss, psnr_val
 
 

@@ -14,9 +14,9 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-def _render_and_grads(backend, scene, T, K, w, h, bg, weights):
+def _render_and_grads(backend, scene, T, K, w, h, bg, weights, low_pass=0.3):
     inputs = [t.clone().requires_grad_(True) for t in (*scene, T)]
-    out = render(*inputs, K, w, h, background=bg, backend=backend)
+    out = render(*inputs, K, w, h, background=bg, backend=backend, low_pass=low_pass)
     img = torch.cat([out.color, out.depth[..., None], out.normal, out.alpha[..., None]], dim=-1)
     (img * weights).sum().backward()
     return img.detach(), out, [t.grad for t in inputs]
@@ -24,14 +24,15 @@ def _render_and_grads(backend, scene, T, K, w, h, bg, weights):
 
 @pytest.mark.parametrize(("dtype", "rtol"), [(torch.float64, 1e-10), (torch.float32, 2e-4)])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_fast_matches_reference_values_and_gradients(dtype, rtol, seed):
+@pytest.mark.parametrize("low_pass", [0.3, 4.8])  # 4.8: the dilation of a 4x zoomed render
+def test_fast_matches_reference_values_and_gradients(dtype, rtol, seed, low_pass):
     w, h = 32, 24
     scene = random_scene(40, seed, dtype=dtype)
     T, K = small_pose(seed, dtype=dtype), intrinsics(w, h, dtype=dtype)
     bg = torch.tensor([0.3, 0.6, 0.1], dtype=dtype)
     weights = torch.rand(h, w, 8, generator=torch.Generator().manual_seed(seed), dtype=dtype)
-    img_ref, out_ref, g_ref = _render_and_grads("torch", scene, T, K, w, h, bg, weights)
-    img_fast, out_fast, g_fast = _render_and_grads("c", scene, T, K, w, h, bg, weights)
+    img_ref, out_ref, g_ref = _render_and_grads("torch", scene, T, K, w, h, bg, weights, low_pass)
+    img_fast, out_fast, g_fast = _render_and_grads("c", scene, T, K, w, h, bg, weights, low_pass)
     assert (
         float(out_ref.alpha.detach().max()) > 0.9 and float(out_ref.alpha.detach().min()) < 0.1
     )  # a non-trivial image

@@ -35,7 +35,7 @@ class TrackParams:
     min_inlier_ratio: float = 0.25  # PnP inliers / matches below this: PnP is refused
     threshold_px: float = 2.0  # PnP inlier threshold
     refine_icp: bool = False  # refine every accepted PnP pose by ICP as well (pipeline.track_icp)
-    icp_fallback: bool = True  # a refused PnP: ICP from the relaxed PnP pose / the prediction
+    icp_fallback: bool = False  # a refused PnP: ICP from the relaxed PnP pose / the prediction
     icp_min_fitness: float = 0.4  # ICP matched points / valid source points at the finest level
 
 

@@ -55,7 +55,7 @@ def test_icp_tracks_a_quick_blurred_frame_where_pnp_is_refused(seq):
     old = track_relative_pose(m, z, a.depth, b.depth, ds.intrinsics, TrackParams(icp_fallback=False))
     assert old.T_ref_cur is None  # PnP refused: what promoted 11 keyframes on teddy at 2x with blur
     assert old.pnp_inliers < 0.25 * old.pnp_matches  # measured 118 of 679; ungated PnP: 3.4 cm, 1.04 deg off
-    new = track_relative_pose(m, z, a.depth, b.depth, ds.intrinsics, TrackParams())
+    new = track_relative_pose(m, z, a.depth, b.depth, ds.intrinsics, TrackParams(icp_fallback=True))
     assert new.source == "icp" and new.T_ref_cur is not None
     dt, dr = _err(new.T_ref_cur, G)
     assert dt < 0.002 and dr < 0.05, (dt, dr)  # measured 0.38 mm, 0.011 deg
@@ -72,7 +72,7 @@ def test_icp_starts_from_the_constant_velocity_prediction_when_the_flow_is_lost(
     prior.observe(f1.index, f1.T_world_cam_gt)
     T_pred = invert_T(a.T_world_cam_gt) @ prior.predict(b.index)
     G = invert_T(a.T_world_cam_gt) @ b.T_world_cam_gt
-    params = TrackParams()
+    params = TrackParams(icp_fallback=True)
     assert track_relative_pose(m, z, a.depth, b.depth, ds.intrinsics, params).T_ref_cur is None
     res = track_relative_pose(m, z, a.depth, b.depth, ds.intrinsics, params, T_pred=T_pred)
     assert res.source == "icp"
@@ -83,7 +83,7 @@ def test_icp_starts_from_the_constant_velocity_prediction_when_the_flow_is_lost(
 def test_an_accepted_pnp_pose_is_kept(seq):
     ds, (a, f1, _) = seq
     m, z = _blurred_matches(ds, a, f1, np.random.default_rng(2), exact_share=1.0)
-    res = track_relative_pose(m, z, a.depth, f1.depth, ds.intrinsics, TrackParams())
+    res = track_relative_pose(m, z, a.depth, f1.depth, ds.intrinsics, TrackParams(icp_fallback=True))
     assert res.source == "pnp" and res.pnp_inliers > 0.9 * res.pnp_matches
     dt, dr = _err(res.T_ref_cur, invert_T(a.T_world_cam_gt) @ f1.T_world_cam_gt)
     assert dt < 1e-4 and dr < 0.01, (dt, dr)  # exact matches: measured ~1e-11

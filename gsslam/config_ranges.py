@@ -208,6 +208,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "pipeline.min_photo_consistency": UNIT,
     "pipeline.min_pnp_inliers": _ge(4),
     "pipeline.min_pnp_inlier_ratio": UNIT,
+    "pipeline.track_icp_min_fitness": UNIT,
     "pipeline.pnp_threshold_px": POS,
     "pipeline.blank_std": NONNEG,
     "pipeline.max_lost_frames": _ge(1),

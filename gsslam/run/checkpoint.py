@@ -80,6 +80,7 @@ def _classes() -> tuple[list[type], tuple[type, ...]]:
     from gsslam.frontend.keyframes import KeyframeSelector
     from gsslam.frontend.mono_encoder import MonoEncoder
     from gsslam.frontend.rgbd_encoder import ColourDepthCheck, RGBDEncoder
+    from gsslam.frontend.rgbd_tracking import MotionPrior
     from gsslam.frontend.tracking import FrameMatches, FrameTracker, TrackStatus
     from gsslam.graph.backend import Backend
     from gsslam.graph.submap_graph import SubmapGraph
@@ -95,7 +96,7 @@ def _classes() -> tuple[list[type], tuple[type, ...]]:
         Pipeline, Chain, ChainKeyframe, Event, CrossFlowFeed, LoopStage, SubmapGraph, Backend,
         KeyframeSelector, MonoEncoder, RGBDEncoder, ColourDepthCheck, FrameTracker, FrameMatches,
         TrackStatus, LoopDetector, LoopStats, SubmapRecord, ViewFeatures, LoopCandidate, LoopConstraint,
-        CameraIntrinsics, Frame, SubmapEncoding, Correspondences,
+        CameraIntrinsics, Frame, SubmapEncoding, Correspondences, MotionPrior,
     ]  # fmt: skip
     resources = (
         config.Config, config.FlowConfig, config.KeyframeConfig, config.EncoderConfig, config.GraphConfig,

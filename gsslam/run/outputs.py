@@ -152,6 +152,7 @@ def write_outputs(
         "chains": len(pipe.chains),
         "chains_in_world": sum(c.in_world for c in pipe.chains),
         "flow_factors": pipe.n_flow_factors,
+        "frames_icp_tracked": getattr(pipe, "n_icp_tracked", 0),  # RGB-D: ICP after a refused PnP
         "wall_time_s": wall,
         "fps": done / wall if wall > 0 else 0.0,
         "stage_seconds": dict(pipe.stage_seconds),

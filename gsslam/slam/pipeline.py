@@ -34,18 +34,18 @@ import numpy as np
 
 from gsslam.config import Config
 from gsslam.errors import GsslamError
+from gsslam.frontend.rgbd_tracking import MotionPrior
 from gsslam.frontend.tracking import (
     FrameMatches,
     FrameTracker,
     is_blank,
-    sample_depth,
 )
 from gsslam.slam import poses
 from gsslam.slam.chains import Chain, ChainKeyframe, Event, keyframe_confidence, pack_submap
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
 from gsslam.slam.plugins import call_plugins
-from gsslam.slam.poses import pose_now, relative_pnp, tracked_pose
+from gsslam.slam.poses import pose_now, relative_rgbd, tracked_pose
 from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
@@ -90,6 +90,8 @@ class Pipeline:
         self.lost = 0
         self.last_good = None
         self.last_pose: np.ndarray = np.eye(4)
+        self.motion = MotionPrior()  # the last two posed frames: RGB-D tracking's constant-velocity start
+        self.n_icp_tracked = 0  # RGB-D frames tracked by ICP after their PnP was refused
         self.online_poses: dict[int, np.ndarray] = {}  # frame -> pose returned by process (as it arrived)
         self.n_frames = 0
         self.n_pose_outliers = 0  # non-keyframe poses replaced by interpolation (frame_poses)
@@ -148,18 +150,13 @@ class Pipeline:
             return self._remember(frame.index, self.online_poses.get(frame.index))
         flow, matches, status = self.tracker.track(frame)
         T_ref_cur = None
-        if status.ok and not self.monocular:
-            depth = sample_depth(
-                frame_depth(self.tracker.ref), self.intrinsics, self.intrinsics, matches.uv_ref
-            )
-            T_ref_cur = relative_pnp(self, matches, depth)
+        if status.ok and not self.monocular:  # PnP, or ICP where PnP is refused (frontend/rgbd_tracking.py)
+            track = relative_rgbd(self, frame, matches, frame_depth(self.tracker.ref))
+            T_ref_cur = track.T_ref_cur
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"
-            elif self.cfg.pipeline.track_icp or getattr(self.encoder, "use_icp", False):
-                from gsslam.frontend.icp import refine_relative_pose
-
-                ref_depth = frame_depth(self.tracker.ref)
-                T_ref_cur = refine_relative_pose(ref_depth, frame.depth, self.intrinsics, T_ref_cur)
+            elif track.source == "icp":
+                self.n_icp_tracked += 1
         if not status.ok and status.reason != "blank" and self.last_good is not None and not retry:
             # The keyframe is too far behind: promote the last tracked frame and try again.
             self._promote(self.last_good)
@@ -188,6 +185,7 @@ class Pipeline:
         if pose is not None:
             self.online_poses[index] = pose
             self.last_pose = pose
+            self.motion.observe(index, pose)
         return None if pose is None else pose.copy()
 
     def _time_gap(self, frame: Frame) -> float | None:
@@ -217,6 +215,7 @@ class Pipeline:
         T = self.current_pose_estimate()
         self.chains.append(Chain(SubmapGraph(self.cfg.graph, self.monocular), T, in_world=not self.chains))
         self.online_poses[frame.index] = T.copy()
+        self.motion.reset()
         self.window = [frame]
         self.prev_frames = []
         self.keyframe_order.append(frame.index)

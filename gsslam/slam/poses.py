@@ -31,6 +31,29 @@ def relative_pnp(p, matches: FrameMatches, depth: np.ndarray) -> np.ndarray | No
     return T
 
 
+def relative_rgbd(p, frame, matches: FrameMatches, depth_ref: np.ndarray):
+    """RGB-D ``T_ref_cur`` of ``frame`` by PnP on the flow matches, ICP on depth where PnP is refused
+    (:func:`gsslam.frontend.rgbd_tracking.track_relative_pose`; ``.T_ref_cur`` None: failed)."""
+    from gsslam.frontend.rgbd_tracking import TrackParams, track_relative_pose
+
+    pc = p.cfg.pipeline
+    params = TrackParams(
+        pc.min_pnp_inliers,
+        pc.min_pnp_inlier_ratio,
+        pc.pnp_threshold_px,
+        refine_icp=pc.track_icp or getattr(p.encoder, "use_icp", False),
+        icp_fallback=pc.track_icp_fallback,
+        icp_min_fitness=pc.track_icp_min_fitness,
+    )
+    T_pred = None
+    T_world_ref = pose_now(p, matches.ref_index)
+    T_world_pred = p.motion.predict(frame.index)
+    if T_world_ref is not None and T_world_pred is not None:
+        T_pred = np.linalg.inv(T_world_ref) @ T_world_pred
+    z = sample_depth(depth_ref, p.intrinsics, p.intrinsics, matches.uv_ref)
+    return track_relative_pose(matches, z, depth_ref, frame.depth, p.intrinsics, params, T_pred)
+
+
 def to_world_units(p, ref: int, T_ref_cur: np.ndarray) -> np.ndarray:
     """Scale a relative pose measured in the keyframe's submap units to world units."""
     kf = p.keyframes.get(ref)

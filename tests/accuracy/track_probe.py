@@ -1,0 +1,105 @@
+"""Why RGB-D tracking fails: a per-frame log of the tracker on a (degraded) teddy playback.
+
+    PYTHONPATH=. python tests/accuracy/track_probe.py [--stride 2] [--pattern fbfbf] [--max-frames 300] \
+        [--loops off] [--set key=value ...]
+
+Runs the pipeline in process (map off, RGB-D) on teddy played ``stride`` times faster with motion blur and
+exposure swings (the ``teddy200_s2_blur`` row) and prints ATE (all frames / keyframes / the others), the
+events, then one JSON line per tracking attempt: frame ``f`` and keyframe ``ref``, the tracker's
+photo-consistency ``pc`` and median flow ``med`` (px), the exposure gain ratio keyframe -> frame ``gain``,
+the RGB-D step's ``source`` (pnp / icp / "" failed), PnP inliers / matches, ICP fitness, the ground-truth
+motion keyframe -> frame and the error of the tracked pose. Not a test: a measuring tool
+(docs/results.md, "RGB-D tracking under blur, session 7").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from collections import Counter
+
+import numpy as np
+
+import gsslam.slam.pipeline as P
+from gsslam.config import load_config
+from gsslam.datasets.base import open_dataset
+from gsslam.eval.ate import ate_from_pairs
+from gsslam.geometry import invert_T, so3_log
+
+
+def _motion(T: np.ndarray) -> tuple[float, float]:  # -> (cm, deg)
+    deg = float(np.degrees(np.linalg.norm(so3_log(T[:3, :3]))))
+    return round(100 * float(np.linalg.norm(T[:3, 3])), 2), round(deg, 2)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seq", default="../shared/data/rgbd_dataset_freiburg3_teddy")
+    ap.add_argument("--stride", type=int, default=2)
+    ap.add_argument("--pattern", default="fbfbf")
+    ap.add_argument("--no-degrade", action="store_true")
+    ap.add_argument("--loops", default="off")
+    ap.add_argument("--set", action="append", default=[], dest="overrides")
+    ap.add_argument("--max-frames", type=int, default=300)
+    a = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    degrade = None if a.no_degrade else {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
+    ds = open_dataset("playback", a.seq, base="tum", pattern=a.pattern, stride=a.stride, degrade=degrade)
+    loops = "true" if a.loops == "on" else "false"
+    cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.overrides], mode="rgbd")
+    pipe = P.Pipeline(cfg, ds.intrinsics)
+    gt: dict[int, np.ndarray | None] = {}
+    rec: list[dict] = []
+    track, rgbd = pipe.tracker.track, P.relative_rgbd
+
+    def logged_track(frame):
+        flow, m, st = track(frame)
+        ref = pipe.tracker.ref
+        d = {"f": frame.index, "ref": ref.index, "ok": st.ok, "reason": st.reason}
+        d.update(pc=round(st.photo_consistency, 3), med=round(st.median_flow_px, 1))
+        if ds.degradation is not None:
+            d["gain"] = round(ds.degradation.gain(frame.index) / ds.degradation.gain(ref.index), 3)
+        if gt.get(ref.index) is not None and gt.get(frame.index) is not None:
+            d["gt_cm"], d["gt_deg"] = _motion(invert_T(gt[ref.index]) @ gt[frame.index])
+        rec.append(d)
+        return flow, m, st
+
+    def logged_rgbd(p, frame, matches, depth_ref):
+        tr = rgbd(p, frame, matches, depth_ref)
+        d = rec[-1]
+        d.update(source=tr.source, inliers=tr.pnp_inliers, matches=tr.pnp_matches)
+        d["fitness"] = round(tr.icp_fitness, 3)
+        if tr.T_ref_cur is not None and "gt_cm" in d:
+            G = invert_T(gt[matches.ref_index]) @ gt[matches.cur_index]
+            d["err_cm"], d["err_deg"] = _motion(invert_T(G) @ tr.T_ref_cur)
+        return tr
+
+    pipe.tracker.track = logged_track
+    P.relative_rgbd = logged_rgbd  # the pipeline calls it by this module-level name
+    n = min(a.max_frames, len(ds))
+    for i in range(n):
+        f = ds[i]
+        gt[f.index] = f.T_world_cam_gt
+        pipe.process(f)
+    pipe.finish()
+    P.relative_rgbd = rgbd
+    est = pipe.frame_poses()
+    idx = [i for i in sorted(est) if gt.get(i) is not None]
+    P_g = np.array([gt[i][:3, 3] for i in idx])
+    res = ate_from_pairs(P_g, np.array([est[i][:3, 3] for i in idx]), "se3")
+    e = np.linalg.norm(res.alignment.apply_positions(np.array([est[i][:3, 3] for i in idx])) - P_g, axis=1)
+    kf = np.array([i in pipe.keyframes for i in idx])
+    rms = lambda x: 100 * float(np.sqrt(np.mean(x**2))) if len(x) else float("nan")  # noqa: E731
+    print(f"{ds.name}: {n} frames; ATE {100 * res.stats.rmse:.3f} cm over {len(idx)} frames; "
+          f"keyframes {rms(e[kf]):.3f} ({int(kf.sum())}), others {rms(e[~kf]):.3f}")  # fmt: skip
+    print("events:", dict(Counter(ev.kind for ev in pipe.events)), "ICP-tracked:", pipe.n_icp_tracked)
+    for ev in pipe.events:
+        print("  ", ev.frame_index, ev.kind, ev.detail[:80])
+    for d in rec:
+        print(json.dumps(d))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -66,7 +66,7 @@ class LoopStage:
         self._across: dict[tuple[int, int], list] = {}  # (new chain, earlier chain) -> verified loops (mono)
         self.icp_refined = 0  # RGB-D loops that entered the graph as ICP relative poses
         self.icp_refused = 0  # ... and those whose ICP was refused (they keep the point factor)
-        self.icp_neighbour_factors = 0  # ICP relative poses between neighbouring submaps (loop.icp_neighbours)
+        self.icp_neighbour_factors = 0  # ICP relative poses to neighbouring submaps (icp_neighbours)
 
     def _detector(self, cid: int):
         if cid not in self._detectors:

@@ -11,7 +11,13 @@ import pytest
 from gsslam.config import LoopConfig
 from gsslam.datasets.synthetic import SyntheticDataset
 from gsslam.geometry import depth_to_points, invert_T, make_T, so3_exp, so3_log
-from gsslam.loop.icp_loop import adjoint, closest_views, left_to_right_information, neighbour_icp, refine_loop_icp
+from gsslam.loop.icp_loop import (
+    adjoint,
+    closest_views,
+    left_to_right_information,
+    neighbour_icp,
+    refine_loop_icp,
+)
 from gsslam.loop.types import LoopConstraint
 from gsslam.types import SubmapEncoding
 

@@ -14,6 +14,10 @@ m -> camera v of i) with a left perturbation ``xi = (rho, omega)`` in camera v, 
 right perturbation is ``delta = Ad_X P xi`` (``P`` puts rotation first), and the information over
 ``delta`` is ``(Ad_X P)^-T H (Ad_X P)^-1``.
 
+With ``loop.icp_neighbours = n`` (RGB-D) the same factor also ties each new submap to its ``n``
+predecessors (:func:`neighbour_icp`): dense depth alignment of overlapping submaps next to the flow
+factors, started at the graph's estimate, whether loop closure is on or off.
+
 Dense ICP residuals are not independent (neighbouring pixels share their depth error, and one pair
 of keyframes shares a calibration); the Hessian of N matches is therefore rescaled to
 ``loop.icp_effective_points`` matches: ``Lambda = H n_eff / N``. ICP is refused (the loop keeps
@@ -31,7 +35,7 @@ import numpy as np
 
 from gsslam.config import LoopConfig
 from gsslam.frontend.icp import icp_point_to_plane
-from gsslam.geometry import invert_T, so3_log
+from gsslam.geometry import invert_T, make_T, so3_log, split_sim3
 from gsslam.loop.types import LoopConstraint
 from gsslam.types import SubmapEncoding
 
@@ -57,15 +61,20 @@ class IcpLoop:
     shift_deg: float
 
 
-def closest_views(T_i_m: np.ndarray, L_i: np.ndarray, L_m: np.ndarray, depth_m: float) -> tuple[int, int]:
+def closest_views(
+    T_i_m: np.ndarray, L_i: np.ndarray, L_m: np.ndarray, depth_m: float, exclude: np.ndarray | None = None
+) -> tuple[int, int]:
     """``(v, u)``: the keyframe of submap i and the one of submap m whose cameras are closest under
     ``T_i_m`` (``L_i`` [V, 4, 4], ``L_m`` [U, 4, 4] local camera poses); distance = translation plus
-    rotation angle times the scene depth ``depth_m`` (the displacement it causes there)."""
+    rotation angle times the scene depth ``depth_m`` (the displacement it causes there). ``exclude``
+    [V, U] bool: pairs not to pick (one frame shared by two submaps)."""
     C_m = T_i_m[None] @ L_m  # [U, 4, 4] cameras of m in i's local frame
     dt = np.linalg.norm(L_i[:, None, :3, 3] - C_m[None, :, :3, 3], axis=-1)  # [V, U]
     Rrel = np.einsum("vji,ujk->vuik", L_i[:, :3, :3], C_m[:, :3, :3])  # R_v^T R_u
     cos = np.clip((np.trace(Rrel, axis1=2, axis2=3) - 1) / 2, -1.0, 1.0)
     cost = dt + np.arccos(cos) * depth_m
+    if exclude is not None:
+        cost = np.where(exclude, np.inf, cost)
     v, u = np.unravel_index(int(np.argmin(cost)), cost.shape)
     return int(v), int(u)
 
@@ -96,26 +105,41 @@ def refine_loop_icp(
     lc: LoopConstraint, enc_i: SubmapEncoding, enc_m: SubmapEncoding, cfg: LoopConfig
 ) -> IcpLoop | None:
     """Dense ICP of the loop's closest keyframe pair, started at ``lc.T_i_m``; None when refused."""
+    icp = icp_relative_pose(lc.T_i_m, enc_i, enc_m, cfg)
+    if icp is None:
+        log.debug("loop %d-%d: ICP refused", lc.i, lc.m)
+    return icp
+
+
+def icp_relative_pose(
+    T_i_m: np.ndarray, enc_i: SubmapEncoding, enc_m: SubmapEncoding, cfg: LoopConfig
+) -> IcpLoop | None:
+    """``T_i_m`` [4, 4] (an estimate of submap m's frame in submap i's) refined by dense ICP of the two
+    submaps' closest pair of distinct keyframes (a frame both submaps hold is never paired with
+    itself), with its information (module docstring); None when ICP is refused."""
     if enc_i.points_cam.shape[1:3] != enc_m.points_cam.shape[1:3]:
         return None
     zi = enc_i.depths
     depth_m = float(np.nanmedian(zi)) if np.isfinite(zi).any() else 1.0
-    v, u = closest_views(lc.T_i_m, enc_i.T_local_cam, enc_m.T_local_cam, depth_m)
+    same = np.asarray(enc_i.frame_indices)[:, None] == np.asarray(enc_m.frame_indices)[None, :]  # [V, U]
+    if same.all():
+        return None
+    v, u = closest_views(T_i_m, enc_i.T_local_cam, enc_m.T_local_cam, depth_m, exclude=same)
     A, B = enc_i.T_local_cam[v], enc_m.T_local_cam[u]
-    T0 = invert_T(A) @ lc.T_i_m @ B  # camera u of m -> camera v of i
+    T0 = invert_T(A) @ T_i_m @ B  # camera u of m -> camera v of i
     res = icp_point_to_plane(
         enc_m.depths[u], enc_i.depths[v], enc_i.intrinsics, T0, strides=LOOP_ICP_STRIDES,
         max_step_m=cfg.icp_max_shift_m, max_step_deg=ICP_MAX_SHIFT_DEG,
     )  # fmt: skip
     if not res.ok or res.hessian is None:
-        log.debug("loop %d-%d: ICP refused (%s, %d points)", lc.i, lc.m, res.reason, res.inliers)
+        log.debug("ICP views %d/%d refused (%s, %d points)", v, u, res.reason, res.inliers)
         return None
-    T_i_m = A @ res.T_tgt_src @ invert_T(B)
+    T_ref = A @ res.T_tgt_src @ invert_T(B)
     info = left_to_right_information(res.hessian, res.T_tgt_src, B)
     info *= cfg.icp_effective_points / max(res.inliers, 1)
-    D = invert_T(lc.T_i_m) @ T_i_m
+    D = invert_T(T_i_m) @ T_ref
     return IcpLoop(
-        T_i_m=T_i_m,
+        T_i_m=T_ref,
         information=info,
         views=(v, u),
         inliers=res.inliers,
@@ -123,3 +147,19 @@ def refine_loop_icp(
         shift_m=float(np.linalg.norm(D[:3, 3])),
         shift_deg=float(np.degrees(np.linalg.norm(so3_log(D[:3, :3])))),
     )
+
+
+def neighbour_icp(
+    sid: int, encs: list[SubmapEncoding], poses: dict[int, np.ndarray], cfg: LoopConfig
+) -> list[tuple[int, IcpLoop]]:
+    """``loop.icp_neighbours``: submap ``sid`` aligned by dense ICP to each of its ``n`` predecessors,
+    started at the graph's estimate (``poses``: submap -> ``T_world_local`` [4, 4] Sim(3), scale ~1 in
+    RGB-D); ``(j, IcpLoop)`` for each pair ICP accepted (``T_i_m`` = submap j in submap sid's frame).
+    With ``j = sid - 1`` the shared keyframe is never paired with itself."""
+    out = []
+    for j in range(max(0, sid - cfg.icp_neighbours), sid):
+        R, t, _ = split_sim3(np.linalg.inv(poses[sid]) @ poses[j])
+        icp = icp_relative_pose(make_T(R, t), encs[sid], encs[j], cfg)
+        if icp is not None:
+            out.append((j, icp))
+    return out

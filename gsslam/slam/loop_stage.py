@@ -3,6 +3,8 @@
 After submap ``i`` has been added to its chain's graph and the graph updated
 (:meth:`LoopStage.after_submap`):
 
+0. RGB-D with ``loop.icp_neighbours = n`` (loop closure on or off): dense ICP relative poses from submap
+   ``i`` to submaps ``i-n .. i-1`` (:func:`gsslam.loop.icp_loop.neighbour_icp`) enter the graph, one update;
 1. the loop detector of the chain registers the submap (compact record: points, tiny images, ORB);
 2. ``detect(i, poses)`` against the graph's current ``T_world_local`` returns verified loops that
    passed the drift gate; each goes into the graph as one point factor (``SubmapGraph.add_loop``;
@@ -64,6 +66,7 @@ class LoopStage:
         self._across: dict[tuple[int, int], list] = {}  # (new chain, earlier chain) -> verified loops (mono)
         self.icp_refined = 0  # RGB-D loops that entered the graph as ICP relative poses
         self.icp_refused = 0  # ... and those whose ICP was refused (they keep the point factor)
+        self.icp_neighbour_factors = 0  # ICP relative poses to neighbouring submaps (icp_neighbours)
 
     def _detector(self, cid: int):
         if cid not in self._detectors:
@@ -75,8 +78,9 @@ class LoopStage:
 
     def after_submap(self, chain, cid: int, sid: int, enc: SubmapEncoding, frames: list[Frame]) -> bool:
         """Register submap ``sid``, close loops; returns True when the graph was updated."""
+        near = self._icp_neighbours(chain, sid)  # RGB-D with loop.icp_neighbours (loop/icp_loop.py)
         if not self.cfg.enabled:
-            return False
+            return near
         det = self._detector(cid)
         h, w = enc.points_cam.shape[1:3]
         by_index = {f.index: f for f in frames}
@@ -88,7 +92,7 @@ class LoopStage:
         poses = {k: graph.submap_pose(k) for k in range(graph.num_submaps)}
         new = det.detect(sid, poses)
         if not new:
-            return False
+            return near
         from gsslam.loop.weights import loop_weight
 
         loops = self._loops[cid]
@@ -117,6 +121,23 @@ class LoopStage:
             graph.update(extra_iterations=10)
         self.corrections += 1
         return True
+
+    def _icp_neighbours(self, chain, sid: int) -> bool:
+        """RGB-D with ``loop.icp_neighbours``: ICP relative poses from submap ``sid`` to its predecessors
+        enter the graph (one update); True when any did."""
+        if self.mode != "rgbd" or self.cfg.icp_neighbours <= 0 or sid >= len(chain.encodings):
+            return False
+        from gsslam.loop.icp_loop import neighbour_icp
+
+        graph = chain.graph
+        poses = {k: graph.submap_pose(k) for k in range(max(0, sid - self.cfg.icp_neighbours), sid + 1)}
+        pairs = neighbour_icp(sid, chain.encodings, poses, self.cfg)
+        for j, icp in pairs:
+            graph.add_loop_pose(sid, j, icp.T_i_m, icp.information, self.cfg.icp_huber)
+        self.icp_neighbour_factors += len(pairs)
+        if pairs:
+            graph.update()
+        return bool(pairs)
 
     def _refine_icp(self, chain, lc):
         """RGB-D with ``loop.icp_refine``: the loop refined by dense ICP (:class:`IcpLoop`), or None."""
@@ -268,4 +289,5 @@ class LoopStage:
         out["in_graph"] = sum(len(v) for v in self._loops.values())
         out["relocalized"] = list(self.relocalized)
         out["icp_refined"], out["icp_refused"] = self.icp_refined, self.icp_refused
+        out["icp_neighbour_factors"] = self.icp_neighbour_factors
         return out

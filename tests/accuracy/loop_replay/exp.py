@@ -25,6 +25,10 @@ SEQ = {
             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0,
                  misregister=dict(baseline_m=0.025, focal_scale=1.114))),
     "teddy200": ("tum", "../shared/data/rgbd_dataset_freiburg3_teddy", {}),
+    # the tracking suite's teddy200_s2_blur row (run it with --max-frames 300)
+    "s2blur": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+               dict(base="tum", pattern="fbfbf", stride=2,
+                    degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))),
 }
 
 def traj(ts, poses, keys):

@@ -46,6 +46,28 @@ def _err(T, G):
     return np.linalg.norm(E[:3, 3]), np.degrees(np.linalg.norm(so3_log(E[:3, :3])))
 
 
+def _drive_loop_stage(sm, cfg: LoopConfig):
+    """The RGB-D loop stage run over the submaps of ``sm`` (a revisit fixture) as the pipeline runs it:
+    each submap added to a fresh graph, then the stage; returns the factor kinds added and its metrics."""
+    from types import SimpleNamespace
+
+    from gsslam.config import GraphConfig
+    from gsslam.graph.submap_graph import SubmapGraph
+    from gsslam.slam.loop_stage import LoopStage
+
+    graph = SubmapGraph(GraphConfig(), monocular=False)
+    chain = SimpleNamespace(graph=graph, encodings=[])
+    stage = LoopStage(cfg, "rgbd")
+    for s, (enc, img) in enumerate(zip(sm.encodings, sm.images)):
+        graph.add_submap(enc)
+        chain.encodings.append(enc)
+        graph.update()
+        frames = [SimpleNamespace(index=f, gray=g) for f, g in zip(enc.frame_indices, img)]
+        stage.after_submap(chain, 0, s, enc, frames)
+    kinds = [op[2][0] for op in graph.backend.replay_log() if op[0] == "factor"]
+    return kinds, stage.metrics()
+
+
 @pytest.fixture(scope="module")
 def scene():
     ds = SyntheticDataset(n_frames=12, width=160, height=120, trajectory="orbit", seed=0)
@@ -140,24 +162,7 @@ def test_icp_loops_close_the_synthetic_revisit_through_the_graph():
 
 def test_loop_stage_adds_rgbd_loops_as_icp_relative_poses(revisit_rgbd):
     """With loop.icp_refine the pipeline's loop stage hands RGB-D loops to the graph as ICP relative poses."""
-    from types import SimpleNamespace
-
-    from gsslam.config import GraphConfig
-    from gsslam.graph.submap_graph import SubmapGraph
-    from gsslam.slam.loop_stage import LoopStage
-
-    sm = revisit_rgbd[0]
-    graph = SubmapGraph(GraphConfig(), monocular=False)
-    chain = SimpleNamespace(graph=graph, encodings=[])
-    stage = LoopStage(dataclasses.replace(LoopConfig(), icp_refine=True), "rgbd")
-    for s, (enc, img) in enumerate(zip(sm.encodings, sm.images)):
-        graph.add_submap(enc)
-        chain.encodings.append(enc)
-        graph.update()
-        frames = [SimpleNamespace(index=f, gray=g) for f, g in zip(enc.frame_indices, img)]
-        stage.after_submap(chain, 0, s, enc, frames)
-    kinds = [op[2][0] for op in graph.backend.replay_log() if op[0] == "factor"]
-    m = stage.metrics()
+    kinds, m = _drive_loop_stage(revisit_rgbd[0], dataclasses.replace(LoopConfig(), icp_refine=True))
     assert m["icp_refined"] >= 1 and kinds.count("relative_pose") == m["icp_refined"]
     assert m["icp_refined"] + m["icp_refused"] == m["accepted"]
 
@@ -184,24 +189,10 @@ def test_neighbour_icp_aligns_a_submap_to_its_predecessors():
 def test_loop_stage_adds_icp_neighbours_with_loops_off(revisit_rgbd):
     """loop.icp_neighbours works without loop closure: each submap gets ICP relative poses to its
     predecessors, and nothing else is added."""
-    from types import SimpleNamespace
 
-    from gsslam.config import GraphConfig
-    from gsslam.graph.submap_graph import SubmapGraph
-    from gsslam.slam.loop_stage import LoopStage
 
     sm = revisit_rgbd[0]
-    graph = SubmapGraph(GraphConfig(), monocular=False)
-    chain = SimpleNamespace(graph=graph, encodings=[])
-    stage = LoopStage(dataclasses.replace(LoopConfig(), enabled=False, icp_neighbours=2), "rgbd")
-    for s, (enc, img) in enumerate(zip(sm.encodings, sm.images)):
-        graph.add_submap(enc)
-        chain.encodings.append(enc)
-        graph.update()
-        frames = [SimpleNamespace(index=f, gray=g) for f, g in zip(enc.frame_indices, img)]
-        stage.after_submap(chain, 0, s, enc, frames)
-    kinds = [op[2][0] for op in graph.backend.replay_log() if op[0] == "factor"]
-    m = stage.metrics()
+    kinds, m = _drive_loop_stage(sm, dataclasses.replace(LoopConfig(), enabled=False, icp_neighbours=2))
     n = len(sm.encodings)
     # outward-facing circle, 36 deg per submap: submap k-2 barely overlaps (refused: ill-conditioned), k-1
     # mostly does; measured 6 of the 17 pairs

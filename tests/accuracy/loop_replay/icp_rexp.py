@@ -4,23 +4,15 @@ ICP relative-pose factor (gsslam.loop.icp_loop) at several effective point count
 Usage: ``PYTHONPATH=. python icp_rexp.py PKL [variant ...]``; variants: asis off rms sig=S icp=N_EFF
 icp=N_EFF,huber=H icpx=N_EFF (ICP factor added next to the point factor)."""
 import dataclasses, pickle, sys
-import numpy as np
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))  # replay.py
 import replay as rp
 from gsslam.config import LoopConfig, load_config
-from gsslam.geometry import depth_to_points
-from gsslam.graph.keys import submap_key
 from gsslam.loop.icp_loop import refine_loop_icp
 from gsslam.loop.types import LoopConstraint
 from gsslam.loop.weights import inlier_rms
-from gsslam.types import SubmapEncoding
 
 st = pickle.load(open(sys.argv[1], "rb"))
-encs = []
-for fi, L, D, intr in zip(st["frame_indices"], st["T_local_cam"], st["enc_depth"], st["enc_intr"]):
-    P = np.stack([depth_to_points(intr.K, d.astype(np.float64)) for d in D])
-    encs.append(SubmapEncoding(list(fi), L, P, np.isfinite(P[..., 2]).astype(float), intr))
-key_of = {submap_key(k): k for k in range(len(encs))}
+encs, key_of = rp.kept_encodings(st)
 lcs = {(d["i"], d["m"]): LoopConstraint(d["i"], d["m"], d["X_i"], d["X_m"], d["T_i_m"], 0.0, 0.0, d["thr"]) for d in st["loopc"]}
 _cache = {}
 

@@ -10,20 +10,15 @@ sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))  # replay.p
 import replay as rp
 from gsslam.config import LoopConfig, load_config
 from gsslam.factors import to_gtsam, to_matrix
-from gsslam.geometry import depth_to_points, invert_T
 from gsslam.graph.backend import Backend
 from gsslam.graph.factor_specs import build_factor
 from gsslam.graph.keys import submap_key
 from gsslam.loop.icp_loop import icp_relative_pose
 from gsslam.eval.ate import compute_ate
-from gsslam.types import SubmapEncoding, Trajectory
+from gsslam.types import Trajectory
 
 st = pickle.load(open(sys.argv[1], "rb"))
-encs = []
-for fi, L, D, intr in zip(st["frame_indices"], st["T_local_cam"], st["enc_depth"], st["enc_intr"]):
-    P = np.stack([depth_to_points(intr.K, d.astype(np.float64)) for d in D])
-    encs.append(SubmapEncoding(list(fi), L, P, np.isfinite(P[..., 2]).astype(float), intr))
-key_of = {submap_key(k): k for k in range(len(encs))}
+encs, key_of = rp.kept_encodings(st)
 lcs = {(d["i"], d["m"]): d["T_i_m"] for d in st["loopc"]}
 CFG1 = dataclasses.replace(LoopConfig(), icp_effective_points=1.0)
 _cache = {}

@@ -9,6 +9,20 @@ from gsslam.factors import to_matrix, to_gtsam
 from gsslam.eval.ate import compute_ate
 from gsslam.types import Trajectory
 
+
+def kept_encodings(st):
+    """The submap encodings of a run kept by ``exp.py --keep-depth`` (depth back-projected with each
+    submap's intrinsics) and the map from graph key to submap index."""
+    from gsslam.geometry import depth_to_points
+    from gsslam.types import SubmapEncoding
+
+    encs = []
+    for fi, L, D, intr in zip(st["frame_indices"], st["T_local_cam"], st["enc_depth"], st["enc_intr"]):
+        P = np.stack([depth_to_points(intr.K, d.astype(np.float64)) for d in D])
+        encs.append(SubmapEncoding(list(fi), L, P, np.isfinite(P[..., 2]).astype(float), intr))
+    return encs, {submap_key(k): k for k in range(len(encs))}
+
+
 def is_loop(sp):
     kind, args, kw = sp
     if kind in ("relative_point", "ray_point"):  # only loops use them (mono, loop.mono_sigma_from_residual)

@@ -219,7 +219,7 @@ class LoopConfig:
     icp_effective_points: float = 100.0  # RGB-D ICP loops: the ICP Hessian of N matches is rescaled to this many independent matches
     icp_huber: float = 3.0  # RGB-D ICP loops: Huber threshold of the relative-pose factor (whitened units)
     icp_max_shift_m: float = 0.05  # RGB-D ICP loops: refused when ICP moves the loop's pose farther than this from RANSAC's
-    icp_neighbours: int = 0  # RGB-D: ICP relative-pose factors from each new submap to its N predecessors (dense depth alignment next to the flow factors; with loop.enabled on or off; loop/icp_loop.py)
+    icp_neighbours: int = 3  # RGB-D: ICP relative-pose factors from each new submap to its N predecessors (dense depth alignment next to the flow factors; with loop.enabled on or off; loop/icp_loop.py)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from gsslam.config import LoopConfig
 from gsslam.geometry import make_T, so3_exp
 from gsslam.loop.appearance import appearance_overlap
 from gsslam.loop.types import LoopCandidate, LoopConstraint, SubmapRecord
-from gsslam.loop.verification import verify
+from gsslam.loop.verification import verify_candidate
 from gsslam.types import SubmapEncoding
 
 
@@ -54,7 +54,7 @@ def verified_against(
         flat = np.argsort(-app, axis=None)
         pairs = tuple((int(a), int(b)) for a, b in zip(*np.unravel_index(flat, app.shape)))
         cand = LoopCandidate(rec_i.submap_id, rec_m.submap_id, 0.0, score, score, pairs)
-        loop = verify(cand, rec_i, rec_m, cfg, mode, rng)
+        loop = verify_candidate(cand, rec_i, rec_m, cfg, mode, rng).loop
         if loop is not None:
             found.append(loop)
     return sorted(found, key=lambda lc: -len(lc))  # stable: ties keep the appearance order

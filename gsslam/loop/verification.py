@@ -160,15 +160,3 @@ def verify_candidate(
         threshold=thr,
     )
     return Verdict(loop, len(X_i), n_inl, "verified")
-
-
-def verify(
-    cand: LoopCandidate,
-    rec_i: SubmapRecord,
-    rec_m: SubmapRecord,
-    cfg: LoopConfig,
-    mode: str,
-    rng: np.random.Generator,
-) -> LoopConstraint | None:
-    """RANSAC-verify one candidate; ``None`` when too few or too inconsistent matches."""
-    return verify_candidate(cand, rec_i, rec_m, cfg, mode, rng).loop

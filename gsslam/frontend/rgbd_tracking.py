@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane
+from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane, refine_relative_pose
 from gsslam.frontend.tracking import FrameMatches, solve_relative_pose
 from gsslam.geometry import interpolate_pose, invert_T
 from gsslam.types import CameraIntrinsics
@@ -42,7 +42,7 @@ class TrackParams:
 @dataclass(frozen=True)
 class RgbdTrack:
     T_ref_cur: np.ndarray | None  # [4, 4]; None: tracking failed
-    source: str  # "pnp" | "pnp+icp" | "icp" (after a refused PnP) | "" (failed)
+    source: str  # "pnp" | "pnp+icp" (pipeline.track_icp) | "icp" (after a refused PnP) | "" (failed)
     pnp_inliers: int
     pnp_matches: int
     icp_fitness: float = float("nan")  # of the ICP that gave the pose (NaN: none)
@@ -87,10 +87,8 @@ def track_relative_pose(
         matches, z_ref, K, params.min_inliers, params.min_inlier_ratio, params.threshold_px
     )
     if T is not None:
-        if params.refine_icp and depth_cur is not None:
-            T_icp, fit = _icp(depth_ref, depth_cur, intr, T)
-            if T_icp is not None:
-                return RgbdTrack(T_icp, "pnp+icp", inl, n, fit)
+        if params.refine_icp and depth_cur is not None:  # pipeline.track_icp: ICP at TRACK_STRIDES, as before
+            return RgbdTrack(refine_relative_pose(depth_ref, depth_cur, intr, T), "pnp+icp", inl, n)
         return RgbdTrack(T, "pnp", inl, n)
     if not params.icp_fallback or depth_cur is None:
         return RgbdTrack(None, "", inl, n)

@@ -46,10 +46,11 @@ def relative_rgbd(p, frame, matches: FrameMatches, depth_ref: np.ndarray):
         icp_min_fitness=pc.track_icp_min_fitness,
     )
     T_pred = None
-    T_world_ref = pose_now(p, matches.ref_index)
-    T_world_pred = p.motion.predict(frame.index)
-    if T_world_ref is not None and T_world_pred is not None:
-        T_pred = np.linalg.inv(T_world_ref) @ T_world_pred
+    if pc.track_icp_fallback:  # the constant-velocity start is read only by the ICP fallback
+        T_world_ref = pose_now(p, matches.ref_index)
+        T_world_pred = p.motion.predict(frame.index)
+        if T_world_ref is not None and T_world_pred is not None:
+            T_pred = np.linalg.inv(T_world_ref) @ T_world_pred
     z = sample_depth(depth_ref, p.intrinsics, p.intrinsics, matches.uv_ref)
     return track_relative_pose(matches, z, depth_ref, frame.depth, p.intrinsics, params, T_pred)
 

@@ -46,12 +46,14 @@ const char *FN(gsslam_source_key)(void) { return GSSLAM_SOURCE_KEY; }
 
 typedef REAL real;
 
-/* Pair predicate of pixel (x, y): o * exp(-power) when inside the ellipse and >= ALPHA_MIN, else -1. */
-static inline real pair_alpha_raw(const real *mu, const real *con, real o, int x, int y) {
+/* Pair predicate of pixel (x, y): o * exp(-power) when inside the ellipse and >= ALPHA_MIN, else -1;
+ * *G = exp(-power) (the Gaussian's falloff, which the backward needs) when not -1. */
+static inline real pair_alpha_raw(const real *mu, const real *con, real o, int x, int y, real *G) {
     real dx = (real)x - mu[0], dy = (real)y - mu[1];
     real pw = (real)0.5 * (con[0] * dx * dx + con[2] * dy * dy) + con[1] * dx * dy;
     if (pw > (real)POWER_CUTOFF) return -1;
-    real a = o * (real)EXP(-pw);
+    *G = (real)EXP(-pw);
+    real a = o * *G;
     return a < (real)ALPHA_MIN ? -1 : a;
 }
 
@@ -112,7 +114,17 @@ typedef struct {
     int64_t *cursor;
     int32_t *counts, *pair_gid;
     real *pair_alpha;
+    const int64_t *span_start; /* NULL, or each Gaussian's first row in `spans` (see span_rows) */
+    int32_t *spans;            /* [rows, 2] (lo, hi) of every row: written by the count pass, read by fill */
+    real *pair_G;              /* NULL, or exp(-power) of every pair (fill writes, the backward reads) */
 } pair_job;
+
+/* Index in `spans` of Gaussian g's row y (its rows over the whole image start at span_start[g]). */
+static inline int64_t span_index(const pair_job *j, int64_t g, const real *mu, const real *con, real o, int y) {
+    double cut; int y0 = y, y1;
+    row_range(mu, con, o, j->radii[g], 0, j->H - 1, &cut, &y0, &y1);
+    return j->span_start[g] + (y - y0);
+}
 
 /* Pass 1 on one band of rows: counts[p] = number of pairs of pixel p. */
 static void *count_band(void *arg) {
@@ -123,11 +135,13 @@ static void *count_band(void *arg) {
         double cut; int y0, y1;
         if (!row_range(mu, con, o, j->radii[g], j->band0, j->band1, &cut, &y0, &y1)) continue;
         double lcut = log(255.0 * (double)o);
+        int32_t *span = j->spans ? j->spans + 2 * span_index(j, g, mu, con, o, y0) : NULL;
         for (int y = y0; y <= y1; ++y) {
             int lo, hi;
             row_span(mu, con, o, cut, lcut, y, j->W, &lo, &hi);
             int32_t *row = j->counts + (int64_t)y * j->W;
             for (int x = lo; x <= hi; ++x) row[x] += 1;
+            if (span) { span[0] = lo; span[1] = hi; span += 2; }
         }
     }
     return NULL;
@@ -143,14 +157,18 @@ static void *fill_band(void *arg) {
         double cut; int y0, y1;
         if (!row_range(mu, con, o, j->radii[g], j->band0, j->band1, &cut, &y0, &y1)) continue;
         double lcut = log(255.0 * (double)o);
+        const int32_t *span = j->spans ? j->spans + 2 * span_index(j, g, mu, con, o, y0) : NULL;
         for (int y = y0; y <= y1; ++y) {
             int lo, hi;
-            row_span(mu, con, o, cut, lcut, y, j->W, &lo, &hi);
+            if (span) { lo = span[0]; hi = span[1]; span += 2; }
+            else row_span(mu, con, o, cut, lcut, y, j->W, &lo, &hi);
             for (int x = lo; x <= hi; ++x) {
-                real a = pair_alpha_raw(mu, con, o, x, y);
+                real G = 0;
+                real a = pair_alpha_raw(mu, con, o, x, y, &G);
                 int64_t slot = j->cursor[(int64_t)y * j->W + x]++;
                 j->pair_gid[slot] = (int32_t)g;
                 j->pair_alpha[slot] = a < (real)ALPHA_MAX ? a : (real)ALPHA_MAX;
+                if (j->pair_G) j->pair_G[slot] = G;
             }
         }
     }
@@ -176,24 +194,47 @@ static void run_bands(void *(*fn)(void *), pair_job *base, int threads) {
     for (int t = 0; t < started; ++t) pthread_join(tid[t], NULL);
 }
 
-/* Pass 1: counts[p] = number of pairs of pixel p. Returns the total. */
+/* Rows of every Gaussian over the whole image: span_start[g] is the index of g's first row among the
+ * rows of all Gaussians (span_start[N] = the total, returned), 0 rows for a Gaussian that draws none. */
+int64_t FN(span_rows)(int64_t N, int W, int H, const real *means2d, const real *conics, const real *opac,
+                      const int64_t *radii, int64_t *span_start) {
+    (void)W;
+    int64_t total = 0;
+    for (int64_t g = 0; g < N; ++g) {
+        double cut; int y0, y1;
+        span_start[g] = total;
+        if (row_range(means2d + 2 * g, conics + 3 * g, opac[g], radii[g], 0, H - 1, &cut, &y0, &y1))
+            total += y1 - y0 + 1;
+    }
+    span_start[N] = total;
+    return total;
+}
+
+/* Pass 1: counts[p] = number of pairs of pixel p. Returns the total. With span_start (from span_rows)
+ * it also writes every row's (lo, hi) to spans [rows, 2], so that fill_pairs need not find them again;
+ * both may be NULL. */
 int64_t FN(count_pairs)(int64_t N, int W, int H, const real *means2d, const real *conics,
-                        const real *opac, const int64_t *radii, int32_t *counts, int threads) {
+                        const real *opac, const int64_t *radii, int32_t *counts, const int64_t *span_start,
+                        int32_t *spans, int threads) {
     memset(counts, 0, sizeof(int32_t) * (size_t)W * H);
-    pair_job j = {N, W, H, 0, H - 1, means2d, conics, opac, radii, NULL, NULL, NULL, counts, NULL, NULL};
+    pair_job j = {N, W, H, 0, H - 1, means2d, conics, opac, radii, NULL, NULL, NULL, counts, NULL, NULL,
+                  span_start, spans, NULL};
     run_bands(count_band, &j, threads);
     int64_t total = 0;
     for (int64_t p = 0; p < (int64_t)W * H; ++p) total += counts[p];
     return total;
 }
 
-/* Pass 2: fill the lists (offsets[P + 1] from the counts) visiting Gaussians in depth order. */
+/* Pass 2: fill the lists (offsets[P + 1] from the counts) visiting Gaussians in depth order. With
+ * span_start / spans (as count_pairs wrote them) the rows' spans are read, not found again; with pair_G
+ * every pair's exp(-power) is stored for the backward. Each may be NULL. */
 void FN(fill_pairs)(int64_t N, int W, int H, const real *means2d, const real *conics, const real *opac,
                     const int64_t *radii, const int64_t *order, const int64_t *offsets, int64_t *cursor,
-                    int32_t *pair_gid, real *pair_alpha, int threads) {
+                    int32_t *pair_gid, real *pair_alpha, const int64_t *span_start, int32_t *spans,
+                    real *pair_G, int threads) {
     memcpy(cursor, offsets, sizeof(int64_t) * (size_t)W * H);
     pair_job j = {N, W, H, 0, H - 1, means2d, conics, opac, radii, order, offsets, cursor, NULL, pair_gid,
-                  pair_alpha};
+                  pair_alpha, span_start, spans, pair_G};
     run_bands(fill_band, &j, threads);
 }
 
@@ -201,7 +242,7 @@ typedef struct {
     int W, H, F, band0, band1;
     const int64_t *offsets;
     const int32_t *pair_gid;
-    const real *pair_alpha, *means2d, *conics, *opac, *feat, *g_feat_out, *g_alpha_out;
+    const real *pair_alpha, *pair_G, *means2d, *conics, *opac, *feat, *g_feat_out, *g_alpha_out;
     real *out_feat, *out_T;
     int32_t *n_used;
     const real *out_T_in;
@@ -264,8 +305,13 @@ static void *backward_band(void *arg) {
                 /* alpha = min(0.99, o G): no gradient through the clamp */
                 const real *mu = j->means2d + 2 * g, *con = j->conics + 3 * g;
                 real dx = (real)x - mu[0], dy = (real)y - mu[1];
-                real pw = (real)0.5 * (con[0] * dx * dx + con[2] * dy * dy) + con[1] * dx * dy;
-                real G = (real)EXP(-pw);
+                real G;
+                if (j->pair_G) {
+                    G = j->pair_G[k];
+                } else {
+                    real pw = (real)0.5 * (con[0] * dx * dx + con[2] * dy * dy) + con[1] * dx * dy;
+                    G = (real)EXP(-pw);
+                }
                 real o = j->opac[g];
                 if (o * G >= (real)ALPHA_MAX) continue;
                 j->g_opac[g] += dL_da * G;
@@ -316,10 +362,11 @@ void FN(composite_forward)(int W, int H, int F, const int64_t *offsets, const in
 
 /* Backward of composite_forward (with out_alpha = 1 - out_T) by reverse compositing, as in 3DGS.
  * Gradients are accumulated (+=) into the zero-initialised g_* arrays; bands other than the first
- * accumulate into private buffers that are summed at the end. Returns 0, or -1 when out of memory
+ * accumulate into private buffers that are summed at the end. pair_G (fill_pairs' exp(-power) of
+ * every pair, or NULL: computed again) saves an exp per pair. Returns 0, or -1 when out of memory
  * or F > 64. */
 int FN(composite_backward)(int W, int H, int F, int64_t N, const int64_t *offsets, const int32_t *pair_gid,
-                           const real *pair_alpha, const real *means2d, const real *conics,
+                           const real *pair_alpha, const real *pair_G, const real *means2d, const real *conics,
                            const real *opac, const real *feat, const real *out_T, const int32_t *n_used,
                            const real *g_feat_out, const real *g_alpha_out, real *g_means2d,
                            real *g_conics, real *g_opac, real *g_feat, int threads) {
@@ -327,7 +374,8 @@ int FN(composite_backward)(int W, int H, int F, int64_t N, const int64_t *offset
     comp_job base = {0};
     comp_job jobs[MAX_THREADS];
     base.W = W; base.H = H; base.F = F; base.offsets = offsets; base.pair_gid = pair_gid;
-    base.pair_alpha = pair_alpha; base.means2d = means2d; base.conics = conics; base.opac = opac;
+    base.pair_alpha = pair_alpha; base.pair_G = pair_G; base.means2d = means2d; base.conics = conics;
+    base.opac = opac;
     base.feat = feat; base.out_T_in = out_T; base.n_used_in = n_used; base.g_feat_out = g_feat_out;
     base.g_alpha_out = g_alpha_out;
     base.g_means2d = g_means2d; base.g_conics = g_conics; base.g_opac = g_opac; base.g_feat = g_feat;

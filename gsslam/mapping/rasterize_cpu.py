@@ -139,13 +139,15 @@ def origin() -> str | None:
 def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
     for tag in _VARIANTS.values():
-        getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, i32]
+        getattr(lib, f"span_rows_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p]
+        getattr(lib, f"span_rows_{tag}").restype = i64
+        getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, i32]
         getattr(lib, f"count_pairs_{tag}").restype = i64
-        getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p, i32]
+        getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p, p, p, p, i32]
         getattr(lib, f"fill_pairs_{tag}").restype = None
         getattr(lib, f"composite_forward_{tag}").argtypes = [i32, i32, i32, p, p, p, p, p, p, p, i32]
         getattr(lib, f"composite_forward_{tag}").restype = None
-        getattr(lib, f"composite_backward_{tag}").argtypes = [i32, i32, i32, i64] + [p] * 15 + [i32]
+        getattr(lib, f"composite_backward_{tag}").argtypes = [i32, i32, i32, i64] + [p] * 16 + [i32]
         getattr(lib, f"composite_backward_{tag}").restype = i32
 
 
@@ -154,13 +156,13 @@ def available(t: Tensor) -> bool:
     return t.device.type == "cpu" and t.dtype in _VARIANTS and _load() is not None
 
 
-def _ptr(t: Tensor) -> int:
-    return t.data_ptr()
+def _ptr(t: Tensor | None) -> int | None:
+    return None if t is None else t.data_ptr()
 
 
 class _CompositeCPU(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height):
+    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, reuse):
         lib, tag = _lib, _VARIANTS[means2d.dtype]
         dt = means2d.dtype
         mu = means2d.detach().contiguous()
@@ -173,14 +175,23 @@ class _CompositeCPU(torch.autograd.Function):
         threads = torch.get_num_threads()
         order = torch.sort(depths.detach(), stable=True).indices.contiguous()
         counts = torch.empty(P, dtype=torch.int32)
+        span_start = spans = None
+        if reuse:  # every row's span found once (count pass), read by the fill pass
+            span_start = torch.empty(n + 1, dtype=torch.int64)
+            rows = getattr(lib, f"span_rows_{tag}")(
+                n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(span_start)
+            )
+            spans = torch.empty(rows, 2, dtype=torch.int32)
         total = getattr(lib, f"count_pairs_{tag}")(
-            n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(counts), threads
-        )
+            n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(counts), _ptr(span_start),
+            _ptr(spans), threads,
+        )  # fmt: skip
         offsets = torch.zeros(P + 1, dtype=torch.int64)
         torch.cumsum(counts, 0, out=offsets[1:])
         cursor = torch.empty(P, dtype=torch.int64)
         pair_gid = torch.empty(total, dtype=torch.int32)
         pair_alpha = torch.empty(total, dtype=dt)
+        pair_G = torch.empty(total, dtype=dt) if reuse else None  # exp(-power) per pair, for the backward
         getattr(lib, f"fill_pairs_{tag}")(
             n,
             width,
@@ -194,6 +205,9 @@ class _CompositeCPU(torch.autograd.Function):
             _ptr(cursor),
             _ptr(pair_gid),
             _ptr(pair_alpha),
+            _ptr(span_start),
+            _ptr(spans),
+            _ptr(pair_G),
             threads,
         )
         out_feat = torch.empty(P, f, dtype=dt)
@@ -213,6 +227,7 @@ class _CompositeCPU(torch.autograd.Function):
             threads,
         )
         ctx.save_for_backward(mu, con, op, feat, offsets, pair_gid, pair_alpha, out_T, n_used)
+        ctx.pair_G = pair_G
         ctx.size = (width, height)
         ctx.in_dtypes = (conics.dtype, opacities.dtype, features.dtype)
         return out_feat.view(height, width, f), (1.0 - out_T).view(height, width)
@@ -239,6 +254,7 @@ class _CompositeCPU(torch.autograd.Function):
             _ptr(offsets),
             _ptr(pair_gid),
             _ptr(pair_alpha),
+            _ptr(ctx.pair_G),
             _ptr(mu),
             _ptr(con),
             _ptr(op),
@@ -256,7 +272,7 @@ class _CompositeCPU(torch.autograd.Function):
         if status != 0:
             raise MemoryError("the CPU rasterizer backward could not allocate its per-thread buffers")
         dc, do, df = ctx.in_dtypes
-        return g_mu, g_con.to(dc), g_op.to(do), g_feat.to(df), None, None, None, None
+        return g_mu, g_con.to(dc), g_op.to(do), g_feat.to(df), None, None, None, None, None
 
 
 def composite_cpu(
@@ -268,10 +284,19 @@ def composite_cpu(
     radii: Tensor,  # [N] int, 0 = skip
     width: int,
     height: int,
+    reuse: bool = True,
 ) -> tuple[Tensor, Tensor]:
-    """Same contract as :func:`~gsslam.mapping.rasterize_reference.composite_reference`."""
+    """Same contract as :func:`~gsslam.mapping.rasterize_reference.composite_reference`.
+
+    ``reuse`` (default): the fill pass reads the row spans the count pass found, and the backward the
+    ``exp(-power)`` of every pair the fill pass computed, instead of finding them again (session 8:
+    the same values and gradients, bit for bit, in less time; tests/mapping/test_rasterize_fast.py).
+    ``False`` runs the kernels as they were before, for that test and for speed comparisons.
+    """
     if _load() is None:
         raise RuntimeError("the compiled CPU rasterizer is unavailable; check available() first")
     if features.shape[1] > 64:
         raise ValueError(f"at most 64 feature channels, got {features.shape[1]}")
-    return _CompositeCPU.apply(means2d, conics, opacities, features, depths, radii, int(width), int(height))
+    return _CompositeCPU.apply(
+        means2d, conics, opacities, features, depths, radii, int(width), int(height), bool(reuse)
+    )

@@ -402,3 +402,195 @@ int FN(composite_backward)(int W, int H, int F, int64_t N, const int64_t *offset
     free(scratch);
     return 0;
 }
+
+/* ---- EWA projection (forward + hand-written backward): the maths of projection.project_gaussians ----
+ *
+ * Per Gaussian: p = R_cw m + t_cw; u = fx x/z + cx, v = fy y/z + cy (z replaced by 1 behind `near`);
+ * J W with x/z, y/z clamped 30 % of the half field of view beyond the image; A = J W R_g S (2 x 3);
+ * cov2d = A A^T + low_pass I; conic = cov2d^-1 (det clamped at 1e-12); the normal is the camera-frame
+ * shortest axis (first smallest scale), flipped to face the camera; radius ceil(3 sqrt(lambda_max)),
+ * 0 when behind `near`, off the image by more than it, or not finite. T is [4, 4] row-major, K [3, 3]. */
+
+typedef struct {
+    real lxp, lxn, lyp, lyn;
+} proj_limits;
+
+static proj_limits proj_lims(const real *K, int W, int H) {
+    real fx = K[0], fy = K[4], cx = K[2], cy = K[5];
+    real tan_x = (real)0.5 * (real)W / fx, tan_y = (real)0.5 * (real)H / fy;
+    proj_limits l;
+    l.lxp = ((real)W - cx) / fx + (real)0.3 * tan_x;
+    l.lxn = cx / fx + (real)0.3 * tan_x;
+    l.lyp = ((real)H - cy) / fy + (real)0.3 * tan_y;
+    l.lyn = cy / fy + (real)0.3 * tan_y;
+    return l;
+}
+
+/* Everything of one Gaussian's projection that the backward needs again. */
+typedef struct {
+    real p[3], z_safe, inv_z, cx_, cy_; /* cx_, cy_: the clamped x/z, y/z */
+    int in_front, clip_x, clip_y;      /* clip_*: the clamp is active (no gradient through x/z) */
+    real qn[4], qnorm, Rg[9], jw0[3], jw1[3], B0[3], B1[3], A0[3], A1[3];
+    real a, b, c, det_raw, det;
+    int axis;
+    real n_world[3], facing;
+} proj_one;
+
+static void proj_compute(const real *m, const real *q, const real *s, const real *T, const real *K,
+                         proj_limits l, real near, real low_pass, proj_one *o) {
+    real fx = K[0], fy = K[4];
+    for (int i = 0; i < 3; ++i) o->p[i] = T[4 * i] * m[0] + T[4 * i + 1] * m[1] + T[4 * i + 2] * m[2] + T[4 * i + 3];
+    real x = o->p[0], y = o->p[1], z = o->p[2];
+    o->in_front = z > near;
+    o->z_safe = o->in_front ? z : (real)1;
+    o->inv_z = (real)1 / o->z_safe;
+    real xz = x * o->inv_z, yz = y * o->inv_z;
+    o->clip_x = !(xz > -l.lxn && xz < l.lxp);
+    o->clip_y = !(yz > -l.lyn && yz < l.lyp);
+    o->cx_ = xz < -l.lxn ? -l.lxn : (xz > l.lxp ? l.lxp : xz);
+    o->cy_ = yz < -l.lyn ? -l.lyn : (yz > l.lyp ? l.lyp : yz);
+    real tx = o->z_safe * o->cx_, ty = o->z_safe * o->cy_;
+    real iz2 = o->inv_z * o->inv_z;
+    for (int j = 0; j < 3; ++j) {
+        o->jw0[j] = fx * o->inv_z * T[j] - fx * tx * iz2 * T[8 + j];
+        o->jw1[j] = fy * o->inv_z * T[4 + j] - fy * ty * iz2 * T[8 + j];
+    }
+    real nq = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    o->qnorm = nq > (real)1e-12 ? nq : (real)1e-12;
+    for (int i = 0; i < 4; ++i) o->qn[i] = q[i] / o->qnorm;
+    real w = o->qn[0], qx = o->qn[1], qy = o->qn[2], qz = o->qn[3];
+    real *R = o->Rg;
+    R[0] = 1 - 2 * (qy * qy + qz * qz); R[1] = 2 * (qx * qy - w * qz); R[2] = 2 * (qx * qz + w * qy);
+    R[3] = 2 * (qx * qy + w * qz); R[4] = 1 - 2 * (qx * qx + qz * qz); R[5] = 2 * (qy * qz - w * qx);
+    R[6] = 2 * (qx * qz - w * qy); R[7] = 2 * (qy * qz + w * qx); R[8] = 1 - 2 * (qx * qx + qy * qy);
+    for (int k = 0; k < 3; ++k) {
+        o->B0[k] = o->jw0[0] * R[k] + o->jw0[1] * R[3 + k] + o->jw0[2] * R[6 + k];
+        o->B1[k] = o->jw1[0] * R[k] + o->jw1[1] * R[3 + k] + o->jw1[2] * R[6 + k];
+        o->A0[k] = o->B0[k] * s[k];
+        o->A1[k] = o->B1[k] * s[k];
+    }
+    o->a = o->A0[0] * o->A0[0] + o->A0[1] * o->A0[1] + o->A0[2] * o->A0[2] + low_pass;
+    o->b = o->A0[0] * o->A1[0] + o->A0[1] * o->A1[1] + o->A0[2] * o->A1[2];
+    o->c = o->A1[0] * o->A1[0] + o->A1[1] * o->A1[1] + o->A1[2] * o->A1[2] + low_pass;
+    o->det_raw = o->a * o->c - o->b * o->b;
+    o->det = o->det_raw > (real)1e-12 ? o->det_raw : (real)1e-12;
+    o->axis = (s[0] <= s[1] && s[0] <= s[2]) ? 0 : (s[1] <= s[2] ? 1 : 2);
+    for (int j = 0; j < 3; ++j) o->n_world[j] = R[3 * j + o->axis];
+    real dot = 0;
+    for (int i = 0; i < 3; ++i)
+        dot += (T[4 * i] * o->n_world[0] + T[4 * i + 1] * o->n_world[1] + T[4 * i + 2] * o->n_world[2]) * o->p[i];
+    o->facing = dot > 0 ? (real)-1 : (real)1;
+}
+
+void FN(project_forward)(int64_t N, const real *means, const real *quats, const real *scales, const real *T,
+                         const real *K, int W, int H, double near, double low_pass, real *means2d,
+                         real *cov2d, real *conics, real *depths, int64_t *radii, real *normals) {
+    proj_limits l = proj_lims(K, W, H);
+    for (int64_t g = 0; g < N; ++g) {
+        proj_one o;
+        proj_compute(means + 3 * g, quats + 4 * g, scales + 3 * g, T, K, l, (real)near, (real)low_pass, &o);
+        real u = K[0] * o.p[0] * o.inv_z + K[2], v = K[4] * o.p[1] * o.inv_z + K[5];
+        means2d[2 * g] = u; means2d[2 * g + 1] = v;
+        cov2d[4 * g] = o.a; cov2d[4 * g + 1] = o.b; cov2d[4 * g + 2] = o.b; cov2d[4 * g + 3] = o.c;
+        conics[3 * g] = o.c / o.det; conics[3 * g + 1] = -o.b / o.det; conics[3 * g + 2] = o.a / o.det;
+        depths[g] = o.p[2];
+        for (int i = 0; i < 3; ++i)
+            normals[3 * g + i] = (T[4 * i] * o.n_world[0] + T[4 * i + 1] * o.n_world[1] + T[4 * i + 2] * o.n_world[2]) * o.facing;
+        real mid = (real)0.5 * (o.a + o.c);
+        real disc = mid * mid - (o.a * o.c - o.b * o.b);
+        real lam = mid + sqrt(disc > 0 ? disc : 0);
+        int64_t r = (int64_t)ceil((real)3.0 * sqrt(lam));
+        int vis = o.in_front && isfinite(u) && isfinite(v) && (u + r >= 0) && (u - r <= W - 1) &&
+                  (v + r >= 0) && (v - r <= H - 1);
+        radii[g] = vis ? r : 0;
+    }
+}
+
+/* Backward of project_forward: gradients of the means, quaternions, scales (written) and of T
+ * (accumulated into g_T [16]) from those of means2d [N, 2], cov2d [N, 4], conics [N, 3], depths [N]
+ * and normals [N, 3]. */
+void FN(project_backward)(int64_t N, const real *means, const real *quats, const real *scales, const real *T,
+                          const real *K, int W, int H, double near, double low_pass, const real *g_means2d,
+                          const real *g_cov2d, const real *g_conics, const real *g_depths,
+                          const real *g_normals, real *g_means, real *g_quats, real *g_scales, real *g_T) {
+    proj_limits l = proj_lims(K, W, H);
+    real fx = K[0], fy = K[4];
+    double gR[9] = {0}, gt[3] = {0};
+    for (int64_t g = 0; g < N; ++g) {
+        proj_one o;
+        const real *m = means + 3 * g, *s = scales + 3 * g;
+        proj_compute(m, quats + 4 * g, s, T, K, l, (real)near, (real)low_pass, &o);
+        /* conic = (c, -b, a) / det, cov2d = (a, b, b, c) */
+        const real *gC = g_conics + 3 * g, *gV = g_cov2d + 4 * g;
+        real ga = gC[2] / o.det + gV[0], gb = -gC[1] / o.det + gV[1] + gV[2], gc = gC[0] / o.det + gV[3];
+        if (o.det_raw >= (real)1e-12) {
+            real gdet = -(gC[0] * o.c - gC[1] * o.b + gC[2] * o.a) / (o.det * o.det);
+            ga += gdet * o.c; gc += gdet * o.a; gb += gdet * (-2 * o.b);
+        }
+        real gjw0[3] = {0, 0, 0}, gjw1[3] = {0, 0, 0}, gRg[9];
+        for (int k = 0; k < 3; ++k) {
+            real gA0 = 2 * ga * o.A0[k] + gb * o.A1[k], gA1 = 2 * gc * o.A1[k] + gb * o.A0[k];
+            g_scales[3 * g + k] = gA0 * o.B0[k] + gA1 * o.B1[k];
+            real gB0 = gA0 * s[k], gB1 = gA1 * s[k];
+            for (int j = 0; j < 3; ++j) {
+                gjw0[j] += gB0 * o.Rg[3 * j + k];
+                gjw1[j] += gB1 * o.Rg[3 * j + k];
+                gRg[3 * j + k] = o.jw0[j] * gB0 + o.jw1[j] * gB1;
+            }
+        }
+        /* normal = facing R_cw n_world */
+        const real *gn = g_normals + 3 * g;
+        for (int j = 0; j < 3; ++j) {
+            real gnw = 0;
+            for (int i = 0; i < 3; ++i) {
+                gR[3 * i + j] += o.facing * gn[i] * o.n_world[j];
+                gnw += T[4 * i + j] * o.facing * gn[i];
+            }
+            gRg[3 * j + o.axis] += gnw;
+        }
+        /* R_g from the normalized quaternion */
+        real w = o.qn[0], x = o.qn[1], y = o.qn[2], z = o.qn[3];
+        const real *G = gRg;
+        real gq[4];
+        gq[0] = 2 * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
+        gq[1] = 2 * (y * G[1] + z * G[2] + y * G[3] - 2 * x * G[4] - w * G[5] + z * G[6] + w * G[7] - 2 * x * G[8]);
+        gq[2] = 2 * (-2 * y * G[0] + x * G[1] + w * G[2] + x * G[3] + z * G[5] - w * G[6] + z * G[7] - 2 * y * G[8]);
+        gq[3] = 2 * (-2 * z * G[0] - w * G[1] + x * G[2] + w * G[3] - 2 * z * G[4] + y * G[5] + x * G[6] + y * G[7]);
+        real qdot = o.qn[0] * gq[0] + o.qn[1] * gq[1] + o.qn[2] * gq[2] + o.qn[3] * gq[3];
+        int normed = o.qnorm > (real)1e-12;
+        for (int i = 0; i < 4; ++i) g_quats[4 * g + i] = (gq[i] - (normed ? o.qn[i] * qdot : 0)) / o.qnorm;
+        /* jw0 = fx/z R0 - fx tx/z^2 R2, jw1 = fy/z R1 - fy ty/z^2 R2 (rows of R_cw) */
+        real tx = o.z_safe * o.cx_, ty = o.z_safe * o.cy_, iz = o.inv_z, iz2 = iz * iz;
+        real r0g = 0, r1g = 0, r2g0 = 0, r2g1 = 0;
+        for (int j = 0; j < 3; ++j) {
+            gR[j] += fx * iz * gjw0[j];
+            gR[3 + j] += fy * iz * gjw1[j];
+            gR[6 + j] += -fx * tx * iz2 * gjw0[j] - fy * ty * iz2 * gjw1[j];
+            r0g += T[j] * gjw0[j]; r1g += T[4 + j] * gjw1[j];
+            r2g0 += T[8 + j] * gjw0[j]; r2g1 += T[8 + j] * gjw1[j];
+        }
+        real g_iz = fx * r0g - 2 * fx * tx * iz * r2g0 + fy * r1g - 2 * fy * ty * iz * r2g1;
+        real g_tx = -fx * iz2 * r2g0, g_ty = -fy * iz2 * r2g1;
+        real g_zs = g_tx * o.cx_ + g_ty * o.cy_;
+        real gp[3] = {0, 0, 0};
+        if (!o.clip_x) { real gxz = g_tx * o.z_safe; gp[0] += gxz * iz; g_iz += gxz * o.p[0]; }
+        if (!o.clip_y) { real gyz = g_ty * o.z_safe; gp[1] += gyz * iz; g_iz += gyz * o.p[1]; }
+        /* means2d */
+        const real *gm2 = g_means2d + 2 * g;
+        gp[0] += gm2[0] * fx * iz; g_iz += gm2[0] * fx * o.p[0];
+        gp[1] += gm2[1] * fy * iz; g_iz += gm2[1] * fy * o.p[1];
+        g_zs += -g_iz * iz2;
+        if (o.in_front) gp[2] += g_zs;
+        gp[2] += g_depths[g];
+        /* p = R_cw m + t */
+        for (int j = 0; j < 3; ++j) g_means[3 * g + j] = T[j] * gp[0] + T[4 + j] * gp[1] + T[8 + j] * gp[2];
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) gR[3 * i + j] += gp[i] * m[j];
+            gt[i] += gp[i];
+        }
+    }
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) g_T[4 * i + j] += (real)gR[3 * i + j];
+        g_T[4 * i + 3] += (real)gt[i];
+    }
+}

@@ -44,8 +44,9 @@ def ssim_map(
             f"ssim_map needs two [H, W, C] images of one shape, got {tuple(a.shape)}, {tuple(b.shape)}"
         )
     w = gaussian_window(sigma, a.dtype, a.device)
-    if min(a.shape[0], a.shape[1]) < len(w):
-        raise ValueError(f"SSIM needs images of at least {len(w)}x{len(w)} pixels, got {a.shape[0]}x{a.shape[1]}")
+    h, wd = a.shape[0], a.shape[1]
+    if min(h, wd) < len(w):
+        raise ValueError(f"SSIM needs images of at least {len(w)}x{len(w)} pixels, got {h}x{wd}")
     if torch.is_grad_enabled() and a.requires_grad and not b.requires_grad:
         return _SSIMRender.apply(a, b, w, data_range)
     return _ssim_parts(a, b, w, data_range)[0]
@@ -70,7 +71,7 @@ def _blur_adjoint(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:  # [1, n, H
     """
     n, h, wd, r = g.shape[1], g.shape[2], g.shape[3], len(w) // 2
     # (explicit zero padding: conv2d's own padding argument is ~1.6x slower on CPU here)
-    t = F.conv2d(F.pad(g, (2 * r, 2 * r)), w.view(1, 1, 1, -1).expand(n, 1, 1, -1), groups=n)  # [1, n, H, W + 2r]
+    t = F.conv2d(F.pad(g, (2 * r, 2 * r)), w.view(1, 1, 1, -1).expand(n, 1, 1, -1), groups=n)  # W + 2r wide
     core = t[..., r : r + wd].clone()
     core[..., :r] += t[..., :r].flip(3)
     core[..., wd - r :] += t[..., wd + r :].flip(3)
@@ -82,7 +83,7 @@ def _blur_adjoint(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:  # [1, n, H
 
 
 def _ssim_parts(a: torch.Tensor, b: torch.Tensor, w: torch.Tensor, data_range: float):
-    """SSIM map [H, W, C] and what its gradient needs: ``(s, (mu_x, mu_y, A1, A2, B1, B2))``, [C, H, W] each."""
+    """SSIM map [H, W, C] and what its gradient needs: ``(s, (mu_x, mu_y, A1, A2, B1, B2))`` [C, H, W]."""
     c = a.shape[2]
     x, y = a.permute(2, 0, 1), b.permute(2, 0, 1)
     mu_x, mu_y, xx, yy, xy = _blur(torch.cat([x, y, x * x, y * y, x * y])[None], w)[0].split(c)

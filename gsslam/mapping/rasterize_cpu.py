@@ -314,8 +314,9 @@ class _ProjectCPU(torch.autograd.Function):
         tag, dt = _VARIANTS[means.dtype], means.dtype
         ins = [t.detach().to(dt).contiguous() for t in (means, quats, scales, T, K)]
         n = ins[0].shape[0]
-        means2d, cov2d, conics = torch.empty(n, 2, dtype=dt), torch.empty(n, 4, dtype=dt), torch.empty(n, 3, dtype=dt)
-        depths, radii, normals = torch.empty(n, dtype=dt), torch.empty(n, dtype=torch.int64), torch.empty(n, 3, dtype=dt)
+        means2d, cov2d, conics = (torch.empty(n, k, dtype=dt) for k in (2, 4, 3))
+        depths, normals = torch.empty(n, dtype=dt), torch.empty(n, 3, dtype=dt)
+        radii = torch.empty(n, dtype=torch.int64)
         getattr(_lib, f"project_forward_{tag}")(
             n, *(_ptr(t) for t in ins), width, height, near, low_pass,
             *(_ptr(t) for t in (means2d, cov2d, conics, depths, radii, normals)),
@@ -336,7 +337,7 @@ class _ProjectCPU(torch.autograd.Function):
             torch.zeros(sh, dtype=dt) if g is None else g.to(dt).contiguous()
             for g, sh in zip((g_means2d, g_cov2d, g_conics, g_depths, g_normals), shapes)
         ]
-        g_means, g_quats, g_scales = torch.empty(n, 3, dtype=dt), torch.empty(n, 4, dtype=dt), torch.empty(n, 3, dtype=dt)
+        g_means, g_quats, g_scales = (torch.empty(n, k, dtype=dt) for k in (3, 4, 3))
         g_T = torch.zeros(4, 4, dtype=dt)
         getattr(_lib, f"project_backward_{tag}")(
             n, *(_ptr(t) for t in ins), *ctx.args, *(_ptr(g) for g in grads),

@@ -131,7 +131,8 @@ def test_reused_spans_and_falloffs_give_the_plain_kernels_results_bit_for_bit(dt
         p = project_gaussians(means, quats, scales, T, K, w, h)
     feat = torch.cat([colors, p.depths[:, None], p.normals], dim=-1)
     g = torch.Generator().manual_seed(5)
-    g_feat, g_alpha = torch.rand(h, w, 7, generator=g, dtype=dtype), torch.rand(h, w, generator=g, dtype=dtype)
+    g_feat = torch.rand(h, w, 7, generator=g, dtype=dtype)
+    g_alpha = torch.rand(h, w, generator=g, dtype=dtype)
     results = {}
     before = torch.get_num_threads()
     torch.set_num_threads(threads)

@@ -197,7 +197,8 @@ class _CompositeCPU(torch.autograd.Function):
         cursor = torch.empty(P, dtype=torch.int64)
         pair_gid = torch.empty(total, dtype=torch.int32)
         pair_alpha = torch.empty(total, dtype=dt)
-        pair_G = torch.empty(total, dtype=dt) if reuse else None  # exp(-power) per pair, for the backward
+        need_grad = any(ctx.needs_input_grad[:4])  # no backward ahead (evaluation renders): nothing to keep
+        pair_G = torch.empty(total, dtype=dt) if reuse and need_grad else None  # exp(-power) per pair
         getattr(lib, f"fill_pairs_{tag}")(
             n,
             width,

@@ -1,4 +1,5 @@
-/* CPU Gaussian compositor (forward + hand-written backward) for gsslam.mapping.rasterize_cpu.
+/* CPU Gaussian compositor and EWA projection (forward + hand-written backward each) for
+ * gsslam.mapping.rasterize_cpu.
  *
  * Built into a small shared library loaded with ctypes (no Python or torch headers), once with
  * REAL=float and once with REAL=double: at install time by setup.py, else at first use with the
@@ -6,7 +7,10 @@
  *
  * Work is organised as exact per-pixel lists: pass 1 counts, per pixel, the (pixel, Gaussian) pairs
  * that pass the rules below; pass 2 fills the lists visiting Gaussians front to back, so each list
- * is already sorted by depth; the forward and backward passes then walk only those pairs.
+ * is already sorted by depth; the forward and backward passes then walk only those pairs. Optionally
+ * (the default since session 8) pass 1 also records every row's span for pass 2 to read, and pass 2
+ * records each pair's exp(-power) for the backward: the same arithmetic, bit for bit, done once.
+ * The projection (end of the file) follows projection.project_gaussians.
  *
  * Rules (identical to rasterize_reference.py): pixel centres at integer coordinates; a pair exists
  * when 0.5 d^T conic d <= POWER_CUTOFF and o * exp(-power) >= 1/255; alpha = min(0.99, o exp(-power));

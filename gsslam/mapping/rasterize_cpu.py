@@ -1,4 +1,5 @@
-"""Compiled CPU compositor: exact per-pixel pair lists, forward and hand-written backward in C.
+"""Compiled CPU compositor (exact per-pixel pair lists) and EWA projection, forward and hand-written
+backward of each in C.
 
 Why a plain C library loaded with :mod:`ctypes` (and not numba or a torch C++ extension): the kernel
 needs nothing but raw float arrays, so it builds with any C compiler in about a second (a torch
@@ -16,8 +17,8 @@ Where the library comes from (:mod:`gsslam.mapping.rasterize_build` holds the re
 3. else :func:`available` is False: ``render(backend="auto")`` uses the pure-torch reference (one
    warning) and ``backend="c"`` raises; both say :func:`unavailable_reason`.
 
-The maths and the rules are those of :func:`gsslam.mapping.rasterize_reference.composite_reference`;
-tests compare values and gradients of the two.
+The maths and the rules are those of :func:`gsslam.mapping.rasterize_reference.composite_reference`
+and :func:`gsslam.mapping.projection.project_gaussians`; tests compare values and gradients of each pair.
 """
 
 from __future__ import annotations

@@ -139,7 +139,12 @@ def render(
                 width, height, background, near, backend, low_pass=low_pass,
             )  # fmt: skip
             return _expand(sub, idx, centres, z)
-    proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near, low_pass)
+    if backend in ("c", "auto") and not means.is_cuda and not K.requires_grad and _c_available(means):
+        from gsslam.mapping.rasterize_cpu import project_cpu  # the same projection, in C (its twin above)
+
+        proj = project_cpu(means, quats, scales, T_cam_world, K, width, height, near, low_pass)
+    else:
+        proj = project_gaussians(means, quats, scales, T_cam_world, K, width, height, near, low_pass)
     if backend == "gsplat" or (backend == "auto" and means.is_cuda and _gsplat_available()):
         _USED.add("gsplat")
         return _render_gsplat(

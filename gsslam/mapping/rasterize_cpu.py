@@ -1,4 +1,5 @@
-"""Compiled CPU compositor: exact per-pixel pair lists, forward and hand-written backward in C.
+"""Compiled CPU compositor (exact per-pixel pair lists) and EWA projection, forward and hand-written
+backward of each in C.
 
 Why a plain C library loaded with :mod:`ctypes` (and not numba or a torch C++ extension): the kernel
 needs nothing but raw float arrays, so it builds with any C compiler in about a second (a torch
@@ -16,8 +17,8 @@ Where the library comes from (:mod:`gsslam.mapping.rasterize_build` holds the re
 3. else :func:`available` is False: ``render(backend="auto")`` uses the pure-torch reference (one
    warning) and ``backend="c"`` raises; both say :func:`unavailable_reason`.
 
-The maths and the rules are those of :func:`gsslam.mapping.rasterize_reference.composite_reference`;
-tests compare values and gradients of the two.
+The maths and the rules are those of :func:`gsslam.mapping.rasterize_reference.composite_reference`
+and :func:`gsslam.mapping.projection.project_gaussians`; tests compare values and gradients of each pair.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import torch
 from torch import Tensor
 
 from gsslam.mapping import rasterize_build as build
+from gsslam.mapping.projection import Projected
 
 _log = logging.getLogger(__name__)
 
@@ -139,14 +141,21 @@ def origin() -> str | None:
 def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
     for tag in _VARIANTS.values():
-        getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, i32]
+        getattr(lib, f"span_rows_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p]
+        getattr(lib, f"span_rows_{tag}").restype = i64
+        getattr(lib, f"count_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, i32]
         getattr(lib, f"count_pairs_{tag}").restype = i64
-        getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p, i32]
+        getattr(lib, f"fill_pairs_{tag}").argtypes = [i64, i32, i32, p, p, p, p, p, p, p, p, p, p, p, p, i32]
         getattr(lib, f"fill_pairs_{tag}").restype = None
         getattr(lib, f"composite_forward_{tag}").argtypes = [i32, i32, i32, p, p, p, p, p, p, p, i32]
         getattr(lib, f"composite_forward_{tag}").restype = None
-        getattr(lib, f"composite_backward_{tag}").argtypes = [i32, i32, i32, i64] + [p] * 15 + [i32]
+        getattr(lib, f"composite_backward_{tag}").argtypes = [i32, i32, i32, i64] + [p] * 16 + [i32]
         getattr(lib, f"composite_backward_{tag}").restype = i32
+        d = ctypes.c_double
+        getattr(lib, f"project_forward_{tag}").argtypes = [i64] + [p] * 5 + [i32, i32, d, d] + [p] * 6
+        getattr(lib, f"project_forward_{tag}").restype = None
+        getattr(lib, f"project_backward_{tag}").argtypes = [i64] + [p] * 5 + [i32, i32, d, d] + [p] * 9
+        getattr(lib, f"project_backward_{tag}").restype = None
 
 
 def available(t: Tensor) -> bool:
@@ -154,13 +163,13 @@ def available(t: Tensor) -> bool:
     return t.device.type == "cpu" and t.dtype in _VARIANTS and _load() is not None
 
 
-def _ptr(t: Tensor) -> int:
-    return t.data_ptr()
+def _ptr(t: Tensor | None) -> int | None:
+    return None if t is None else t.data_ptr()
 
 
 class _CompositeCPU(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height):
+    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, reuse):
         lib, tag = _lib, _VARIANTS[means2d.dtype]
         dt = means2d.dtype
         mu = means2d.detach().contiguous()
@@ -173,14 +182,24 @@ class _CompositeCPU(torch.autograd.Function):
         threads = torch.get_num_threads()
         order = torch.sort(depths.detach(), stable=True).indices.contiguous()
         counts = torch.empty(P, dtype=torch.int32)
+        span_start = spans = None
+        if reuse:  # every row's span found once (count pass), read by the fill pass
+            span_start = torch.empty(n + 1, dtype=torch.int64)
+            rows = getattr(lib, f"span_rows_{tag}")(
+                n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(span_start)
+            )
+            spans = torch.empty(rows, 2, dtype=torch.int32)
         total = getattr(lib, f"count_pairs_{tag}")(
-            n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(counts), threads
-        )
+            n, width, height, _ptr(mu), _ptr(con), _ptr(op), _ptr(rad), _ptr(counts), _ptr(span_start),
+            _ptr(spans), threads,
+        )  # fmt: skip
         offsets = torch.zeros(P + 1, dtype=torch.int64)
         torch.cumsum(counts, 0, out=offsets[1:])
         cursor = torch.empty(P, dtype=torch.int64)
         pair_gid = torch.empty(total, dtype=torch.int32)
         pair_alpha = torch.empty(total, dtype=dt)
+        need_grad = any(ctx.needs_input_grad[:4])  # no backward ahead (evaluation renders): nothing to keep
+        pair_G = torch.empty(total, dtype=dt) if reuse and need_grad else None  # exp(-power) per pair
         getattr(lib, f"fill_pairs_{tag}")(
             n,
             width,
@@ -194,6 +213,9 @@ class _CompositeCPU(torch.autograd.Function):
             _ptr(cursor),
             _ptr(pair_gid),
             _ptr(pair_alpha),
+            _ptr(span_start),
+            _ptr(spans),
+            _ptr(pair_G),
             threads,
         )
         out_feat = torch.empty(P, f, dtype=dt)
@@ -213,6 +235,7 @@ class _CompositeCPU(torch.autograd.Function):
             threads,
         )
         ctx.save_for_backward(mu, con, op, feat, offsets, pair_gid, pair_alpha, out_T, n_used)
+        ctx.pair_G = pair_G
         ctx.size = (width, height)
         ctx.in_dtypes = (conics.dtype, opacities.dtype, features.dtype)
         return out_feat.view(height, width, f), (1.0 - out_T).view(height, width)
@@ -239,6 +262,7 @@ class _CompositeCPU(torch.autograd.Function):
             _ptr(offsets),
             _ptr(pair_gid),
             _ptr(pair_alpha),
+            _ptr(ctx.pair_G),
             _ptr(mu),
             _ptr(con),
             _ptr(op),
@@ -256,7 +280,7 @@ class _CompositeCPU(torch.autograd.Function):
         if status != 0:
             raise MemoryError("the CPU rasterizer backward could not allocate its per-thread buffers")
         dc, do, df = ctx.in_dtypes
-        return g_mu, g_con.to(dc), g_op.to(do), g_feat.to(df), None, None, None, None
+        return g_mu, g_con.to(dc), g_op.to(do), g_feat.to(df), None, None, None, None, None
 
 
 def composite_cpu(
@@ -268,10 +292,83 @@ def composite_cpu(
     radii: Tensor,  # [N] int, 0 = skip
     width: int,
     height: int,
+    reuse: bool = True,
 ) -> tuple[Tensor, Tensor]:
-    """Same contract as :func:`~gsslam.mapping.rasterize_reference.composite_reference`."""
+    """Same contract as :func:`~gsslam.mapping.rasterize_reference.composite_reference`.
+
+    ``reuse`` (default): the fill pass reads the row spans the count pass found, and the backward the
+    ``exp(-power)`` of every pair the fill pass computed, instead of finding them again (session 8:
+    the same values and gradients, bit for bit, in less time; tests/mapping/test_rasterize_fast.py).
+    ``False`` runs the kernels as they were before, for that test and for speed comparisons.
+    """
     if _load() is None:
         raise RuntimeError("the compiled CPU rasterizer is unavailable; check available() first")
     if features.shape[1] > 64:
         raise ValueError(f"at most 64 feature channels, got {features.shape[1]}")
-    return _CompositeCPU.apply(means2d, conics, opacities, features, depths, radii, int(width), int(height))
+    return _CompositeCPU.apply(
+        means2d, conics, opacities, features, depths, radii, int(width), int(height), bool(reuse)
+    )
+
+
+class _ProjectCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, T, K, width, height, near, low_pass):
+        tag, dt = _VARIANTS[means.dtype], means.dtype
+        ins = [t.detach().to(dt).contiguous() for t in (means, quats, scales, T, K)]
+        n = ins[0].shape[0]
+        means2d, cov2d, conics = (torch.empty(n, k, dtype=dt) for k in (2, 4, 3))
+        depths, normals = torch.empty(n, dtype=dt), torch.empty(n, 3, dtype=dt)
+        radii = torch.empty(n, dtype=torch.int64)
+        getattr(_lib, f"project_forward_{tag}")(
+            n, *(_ptr(t) for t in ins), width, height, near, low_pass,
+            *(_ptr(t) for t in (means2d, cov2d, conics, depths, radii, normals)),
+        )  # fmt: skip
+        ctx.save_for_backward(*ins)
+        ctx.args = (width, height, near, low_pass)
+        ctx.in_dtypes = (quats.dtype, scales.dtype, T.dtype)
+        ctx.mark_non_differentiable(radii)
+        return means2d, cov2d.view(n, 2, 2), conics, depths, radii, normals
+
+    @staticmethod
+    def backward(ctx, g_means2d, g_cov2d, g_conics, g_depths, _g_radii, g_normals):
+        ins = ctx.saved_tensors
+        dt, tag = ins[0].dtype, _VARIANTS[ins[0].dtype]
+        n = ins[0].shape[0]
+        shapes = ((n, 2), (n, 2, 2), (n, 3), (n,), (n, 3))
+        grads = [
+            torch.zeros(sh, dtype=dt) if g is None else g.to(dt).contiguous()
+            for g, sh in zip((g_means2d, g_cov2d, g_conics, g_depths, g_normals), shapes)
+        ]
+        g_means, g_quats, g_scales = (torch.empty(n, k, dtype=dt) for k in (3, 4, 3))
+        g_T = torch.zeros(4, 4, dtype=dt)
+        getattr(_lib, f"project_backward_{tag}")(
+            n, *(_ptr(t) for t in ins), *ctx.args, *(_ptr(g) for g in grads),
+            _ptr(g_means), _ptr(g_quats), _ptr(g_scales), _ptr(g_T),
+        )  # fmt: skip
+        dq, ds, dT = ctx.in_dtypes
+        return g_means, g_quats.to(dq), g_scales.to(ds), g_T.to(dT), None, None, None, None, None
+
+
+def project_cpu(
+    means: Tensor,  # [N, 3] world
+    quats: Tensor,  # [N, 4] (w, x, y, z)
+    scales: Tensor,  # [N, 3] linear
+    T_cam_world: Tensor,  # [4, 4]
+    K: Tensor,  # [3, 3] (no gradient)
+    width: int,
+    height: int,
+    near: float = 0.01,
+    low_pass: float = 0.3,
+) -> Projected:
+    """:func:`~gsslam.mapping.projection.project_gaussians` in C (one pass forward, one backward).
+
+    The same maths, values equal to rounding and gradients w.r.t. ``means``, ``quats``, ``scales`` and
+    ``T_cam_world`` (tests/mapping/test_project_cpu.py); instead of ~100 torch operations forward and
+    ~200 backward. ``K`` gets no gradient. Needs the kernel (:func:`available` of ``means``).
+    """
+    if _load() is None:
+        raise RuntimeError("the compiled CPU rasterizer is unavailable; check available() first")
+    means2d, cov2d, conics, depths, radii, normals = _ProjectCPU.apply(
+        means, quats, scales, T_cam_world, K.detach(), int(width), int(height), float(near), float(low_pass)
+    )
+    return Projected(means2d=means2d, cov2d=cov2d, conics=conics, depths=depths, radii=radii, normals=normals)

@@ -154,11 +154,12 @@ def test_exposure_recovers_a_known_gain_and_bias(teddy_frames):
     for k, f in enumerate(frames[1:], start=1):
         got = _response(m.map.keyframes[f.index].exposure)  # gain and bias trade off; the map they make
         want = truth if k in changed else torch.linspace(0.1, 0.9, 9)[:, None]
-        # measured: 0.015 / 0.022 / 0.016 at most over the grey levels; the change to find is up to 0.165
+        # measured: 0.016 / 0.022 / 0.017 at most over the grey levels (session 7: 0.015 / 0.022 / 0.016);
+        # the change to find is up to 0.165
         assert float((got - want).abs().max()) < 0.05, (k, got, want)
     poses = {f.index: f.T_world_cam_gt for f in frames}
     with_x = m.evaluate(iter(frames), poses)
     without = _map(frames, exposure=False).evaluate(iter(frames), poses)
     assert "exposure" in with_x and "exposure" not in without
-    # measured: 27.91 vs 25.18 dB: one colour per Gaussian cannot serve both exposures
+    # measured: 27.88 vs 25.18 dB (session 7: 27.91): one colour per Gaussian cannot serve both exposures
     assert with_x["psnr_keyframes"] > without["psnr_keyframes"] + 1.5

@@ -129,7 +129,7 @@ class MapperConfig:
     lr_opacity: float = 5e-2
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
-    exposure: bool = False  # per-keyframe affine colour (log gain + bias per channel) optimised with the map (docs/mapping.md)
+    exposure: bool = True  # per-keyframe affine colour (log gain + bias per channel) optimised with the map (docs/mapping.md)
     lr_exposure: float = 5e-3  # Adam step of those exposures
     lambda_exposure: float = 0.01  # L2 pull of each exposure towards the identity
     zoom_low_pass: bool = True  # renders finer than the mapper's scale the 0.3 px^2 screen dilation by the zoom^2 (docs/mapping.md)

@@ -35,6 +35,7 @@ import torch
 
 from gsslam.config import MapperConfig
 from gsslam.geometry import invert_T, split_sim3
+from gsslam.mapping import exposure as X
 from gsslam.mapping import final_pass, outputs
 from gsslam.mapping.converged import covered_depths
 from gsslam.mapping.densify import DensifyStrategy
@@ -130,6 +131,9 @@ class GaussianMapper:
         st = self.map
         size = (self.intrinsics.width, self.intrinsics.height)
         kf = make_keyframe(self.cfg, frame, T_world_cam, submap_id, size, self.device, points_cam, confidence)
+        if self.cfg.exposure and st.order and st.order[0] != frame.index:  # start at the nearest keyframe's
+            e = outputs.frame_exposure(st, frame.index)
+            kf.exposure = X.identity(self.device) if e is None else e.detach().clone()
         if frame.index not in st.keyframes:
             st.order.append(frame.index)
         st.keyframes[frame.index] = kf
@@ -160,6 +164,7 @@ class GaussianMapper:
             return None
         size = (self.intrinsics.width, self.intrinsics.height)
         kf = make_keyframe(self.cfg, frame, T_world_cam, -1, size, self.device, points_cam, confidence)
+        kf.exposure = outputs.frame_exposure(self.map, frame.index)  # the nearest keyframe's (None: identity)
         with torch_threads(self.cfg.num_threads):
             return register(self.map, kf, self.cfg.registration_iterations)
 

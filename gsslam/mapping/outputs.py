@@ -65,13 +65,17 @@ def frame_exposure(state: MapState, index: int) -> torch.Tensor | None:
     (:func:`gsslam.mapping.exposure.nearest_exposure`; no pixel of the frame is used); None: identity."""
     if index in state.keyframes:
         return state.keyframes[index].exposure
-    known = {i: kf.exposure for i, kf in state.keyframes.items() if kf.exposure is not None}
+    if all(kf.exposure is None for kf in state.keyframes.values()):
+        return None
+    # the first keyframe (the gauge) has None, the identity: it is a candidate like any other
+    ident = X.identity(state.device)
+    known = {i: ident if kf.exposure is None else kf.exposure for i, kf in state.keyframes.items()}
     return X.nearest_exposure(index, known)
 
 
 def _colour(out, exposure: torch.Tensor | None) -> np.ndarray:  # -> [H, W, 3] in [0, 1]
     with torch.no_grad():
-        return X.apply(out.color, exposure).clamp(0, 1).cpu().numpy()
+        return X.apply(out.color, exposure, out.alpha).clamp(0, 1).cpu().numpy()
 
 
 def evaluate_map(

@@ -12,6 +12,7 @@ import logging
 import torch
 
 from gsslam.config import MapperConfig
+from gsslam.mapping import exposure as X
 from gsslam.mapping import losses as L
 from gsslam.mapping.adam import Adam
 from gsslam.mapping.keyframes import Keyframe
@@ -38,9 +39,12 @@ def pose_prior(cfg: MapperConfig, kf: Keyframe, weight: float | None = None) -> 
 def pose_loss(
     cfg: MapperConfig, out: RenderOutput, kf: Keyframe, prior: bool = True, prior_weight: float | None = None
 ) -> torch.Tensor:
-    """Photometric L1 + scale-invariant depth under ``alpha > 0.9`` (+ :func:`pose_prior`)."""
+    """Photometric L1 (through the keyframe's exposure) + scale-invariant depth under ``alpha > 0.9``
+    (+ :func:`pose_prior`)."""
     mask = out.alpha.detach() > 0.9
-    loss = L.l1(out.color, kf.image, mask) + cfg.lambda_pose_depth * L.scale_invariant_depth(
+    expo = None if kf.exposure is None else kf.exposure.detach()  # fitted by its own loss, not here
+    color = X.apply(out.color, expo, out.alpha)  # [H, W, 3] the render through the keyframe's exposure
+    loss = L.l1(color, kf.image, mask) + cfg.lambda_pose_depth * L.scale_invariant_depth(
         out.depth, kf.depth, mask
     )
     return loss + pose_prior(cfg, kf, prior_weight) if prior else loss

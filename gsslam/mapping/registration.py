@@ -23,12 +23,14 @@ view is mostly explained by young Gaussians (share of the rendered weight from c
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from gsslam.mapping import exposure as X
 from gsslam.mapping.converged import converged_mask, converged_share, converged_view
 from gsslam.mapping.keyframes import Keyframe
 from gsslam.mapping.pose import se3_delta_matrix
@@ -167,8 +169,14 @@ def gauss_newton(state: MapState, kf: Keyframe, iterations: int):
 
 
 def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | None:
-    """Register ``kf`` (not part of the map) against the map; None where the map cannot tell its pose."""
+    """Register ``kf`` (not part of the map) against the map; None where the map cannot tell its pose.
+
+    With an exposure on ``kf`` (the nearest keyframe's, :meth:`GaussianMapper.register`) the render is
+    compared with the image brought back to the map's exposure (:func:`gsslam.mapping.exposure.unapply`).
+    """
     cfg = state.cfg
+    if kf.exposure is not None:
+        kf = dataclasses.replace(kf, image=X.unapply(kf.image, kf.exposure), exposure=None)
     mask = converged_mask(state, cfg.feedback_min_age)
     coverage, share = converged_share(state, kf.T_cam_world(state.device), mask)
     if coverage < cfg.registration_min_coverage or share < cfg.feedback_min_converged:

@@ -205,10 +205,11 @@ def step_loss(
         kf = coarse_keyframe(kf, intr.width, intr.height)
         w_flow = 0.0
     out = render(state, kf.T_cam_world(dev, with_delta=True), intrinsics=intr)
-    color = X.apply(out.color, kf.exposure)  # [h, w, 3] the render through the keyframe's exposure
+    # [h, w, 3] the render through the keyframe's exposure; the exposure's own fit on covered pixels
+    color, fit = X.exposed(out.color, out.alpha, kf.exposure, kf.image)
     loss = L.color_loss(color, kf.image, cfg.lambda_ssim)
-    if kf.exposure is not None and kf.exposure.requires_grad:
-        loss = loss + cfg.lambda_exposure * X.regularizer(kf.exposure)
+    if fit is not None:
+        loss = loss + fit + cfg.lambda_exposure * X.regularizer(kf.exposure)
     unit = kf.median_depth if cfg.depth_scale_free else 1.0
     loss = loss + cfg.lambda_depth * L.inverse_depth_l1(
         out.depth, kf.depth, weight=kf.depth_weight, unit=unit

@@ -34,8 +34,9 @@ from gsslam.frontend.encoder import (
 )
 from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, resize_flow, textured_mask
 from gsslam.frontend.icp import icp_point_to_plane
-from gsslam.frontend.pose_estimation import pnp_from_flow, pose_distance
-from gsslam.geometry import depth_to_points, invert_T, so3_log
+from gsslam.frontend.joint_pose import joint_pose
+from gsslam.frontend.pose_estimation import pnp, pose_distance, random_flow_matches
+from gsslam.geometry import backproject, depth_to_points, invert_T, so3_log
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
@@ -178,16 +179,9 @@ class RGBDEncoder:
         valid = forward_backward_mask(fw, bw, FB_THRESHOLD_PX) & textured_mask(
             imgs[i - 1]
         )  # flow is blind elsewhere
-        res = pnp_from_flow(
-            depths[i - 1],
-            fw,
-            valid,
-            intr.K,
-            self.cfg.ransac_threshold_px,
-            self.cfg.min_inliers,
-            self.rng,
-            self.cfg.max_points_per_frame,
-        )
+        uv_s, uv_t, z = random_flow_matches(fw, valid, depths[i - 1], self.cfg.max_points_per_frame, self.rng)
+        X = backproject(intr.K, uv_s, z)  # [N, 3] in frame i-1
+        res = pnp(X, uv_t, intr.K, self.cfg.ransac_threshold_px, self.cfg.min_inliers)
         meta["pnp_inliers"].append(res.inliers)
         T = res.T_tgt_src
         if T is None:
@@ -207,6 +201,22 @@ class RGBDEncoder:
                 T = icp.T_tgt_src
             elif not icp.ok:
                 meta["icp_rejected"].append((i, icp.reason))
+        if self.cfg.rgbd_joint_pose and res.T_tgt_src is not None and not self.use_icp:
+            joint = joint_pose(
+                X,
+                uv_t,
+                depths[i - 1],
+                depths[i],
+                intr,
+                res.T_tgt_src,
+                flow_weight=self.cfg.rgbd_joint_flow_weight,
+                strides=ICP_STRIDES,
+                inlier_px=self.cfg.ransac_threshold_px,
+            )
+            if joint.ok:
+                T = joint.T_tgt_src
+            else:
+                meta["joint_rejected"].append((i, joint.reason))
         if self.cfg.rgbd_odometry:
             ok, T_odo = rgbd_odometry((imgs[i - 1], depths[i - 1]), (imgs[i], depths[i]), intr, T, self.cfg)
             dt, dr = pose_distance(T, T_odo)
@@ -238,6 +248,7 @@ class RGBDEncoder:
             "direct_rejected": [],
             "icp_rejected": [],
             "icp_direct_rejected": [],
+            "joint_rejected": [],
             "degenerate": False,
         }
         n = len(frames)

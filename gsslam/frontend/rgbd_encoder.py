@@ -201,7 +201,11 @@ class RGBDEncoder:
                 T = icp.T_tgt_src
             elif not icp.ok:
                 meta["icp_rejected"].append((i, icp.reason))
-        if self.cfg.rgbd_joint_pose and res.T_tgt_src is not None and not self.use_icp:
+        if (
+            self.cfg.rgbd_joint_pose
+            and res.T_tgt_src is not None
+            and (self.cfg.rgbd_joint_with_icp or not self.use_icp)
+        ):
             joint = joint_pose(
                 X,
                 uv_t,

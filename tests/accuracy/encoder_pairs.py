@@ -1,6 +1,6 @@
-"""RGB-D encoder keyframe pairs: PnP on forward-backward-checked flow at 320 px vs ICP vs both jointly, against ground truth.
+"""RGB-D encoder keyframe pairs: PnP on checked flow at 320 px vs ICP vs both jointly, against ground truth.
 
-    PYTHONPATH=. python tests/accuracy/encoder_pairs.py STRIDE GAP [WEIGHT]  # 2 2: 2x with blur; 1 4: as recorded
+    PYTHONPATH=. python tests/accuracy/encoder_pairs.py STRIDE GAP [WEIGHT]  # 2 2: 2x, blur; 1 4: as recorded
 
 About 30 pairs ``GAP`` played frames apart over teddy played forward at ``STRIDE`` (with blur and exposure
 swings when STRIDE > 1), posed as the RGB-D encoder poses consecutive keyframes (``pnp_from_flow``,

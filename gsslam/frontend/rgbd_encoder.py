@@ -219,6 +219,7 @@ class RGBDEncoder:
             )
             if joint.ok:
                 T = joint.T_tgt_src
+                meta["joint_posed"].append(i)
             else:
                 meta["joint_rejected"].append((i, joint.reason))
         if self.cfg.rgbd_odometry:
@@ -253,6 +254,7 @@ class RGBDEncoder:
             "icp_rejected": [],
             "icp_direct_rejected": [],
             "joint_rejected": [],
+            "joint_posed": [],
             "degenerate": False,
         }
         n = len(frames)
@@ -261,8 +263,10 @@ class RGBDEncoder:
             T_i_prev = self._frame_to_frame(frames, imgs, depths, i, intr, meta)
             T_chain = T_local[i - 1] @ invert_T(T_i_prev)  # T_0_i
             T_local[i] = T_chain
-            if self.use_icp and self.cfg.rgbd_icp_direct and i > 1:
-                # keyframe-to-keyframe: frame i straight against frame 0 stops the chained drift
+            direct = self.use_icp and self.cfg.rgbd_icp_direct and i > 1
+            if direct and not meta["joint_posed"]:
+                # keyframe-to-keyframe: frame i straight against frame 0 stops the chained drift (not
+                # after joint poses: depth alone from frame 0 undid their gain, docs/results.md, session 8)
                 icp = icp_point_to_plane(depths[0], depths[i], intr, invert_T(T_chain), strides=ICP_STRIDES)
                 if icp.ok:
                     T_local[i] = invert_T(icp.T_tgt_src)

@@ -204,7 +204,7 @@ class RGBDEncoder:
         if (
             self.cfg.rgbd_joint_pose
             and res.T_tgt_src is not None
-            and (self.cfg.rgbd_joint_with_icp or not self.use_icp)
+            and (not self.use_icp or (self.cfg.rgbd_joint_with_icp and not self.check.mismatch))
         ):
             joint = joint_pose(
                 X,

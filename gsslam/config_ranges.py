@@ -75,6 +75,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.mono_shared_depth_min_confidence": Range(0.0, 1.0),
     "encoder.rgbd_icp_auto_min_ratio": POS,
     "encoder.rgbd_icp_auto_max_ratio": POS,
+    "encoder.rgbd_joint_flow_weight": POS,
     "encoder.colour_focal_frames": _ge(8),
     "encoder.colour_focal_min_dev": Range(0.0, 0.5),
     "encoder.colour_focal_min_baseline_m": Range(0.0, 0.2),

@@ -56,6 +56,9 @@ class EncoderConfig:
     rgbd_icp_auto_min_ratio: float = 0.96  # PnP / ICP rotation ratio below this: colour and depth disagree
     rgbd_icp_auto_max_ratio: float = 1.08  # above this (ICP itself turns ~3 % short on TUM teddy: 1.02-1.05)
     rgbd_icp_direct: bool = True  # and register each keyframe directly to the submap's frame 0 by ICP
+    rgbd_joint_pose: bool = True  # RGB-D: keyframe poses from flow (PnP inliers) and depth (point-to-plane) jointly (frontend/joint_pose.py)
+    rgbd_joint_flow_weight: float = 1.0  # weight of the flow term against the depth term in that joint pose
+    rgbd_joint_with_icp: bool = True  # that joint pose also where rgbd_icp is set (registered depth), unless ColourDepthCheck finds a mismatch
     colour_focal_auto: bool = True  # RGB-D: depth-to-colour registration from the first frames (depth_registration.py)
     colour_focal_frames: int = 40  # frames read for that estimate
     colour_focal_min_dev: float = 0.02  # correct intrinsics + register depth only when |ratio - 1| exceeds this

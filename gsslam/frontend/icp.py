@@ -45,7 +45,7 @@ class IcpResult:
     hessian: np.ndarray | None = None
 
 
-def _points(depth: np.ndarray, intr: CameraIntrinsics, stride: int) -> tuple[np.ndarray, np.ndarray]:
+def strided_points(depth: np.ndarray, intr: CameraIntrinsics, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """Point map [h', w', 3] of ``depth`` sampled every ``stride`` px, and its intrinsics matrix."""
     d = depth[stride // 2 :: stride, stride // 2 :: stride].astype(np.float64)
     h, w = d.shape
@@ -58,7 +58,7 @@ def _points(depth: np.ndarray, intr: CameraIntrinsics, stride: int) -> tuple[np.
     return P, np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
 
 
-def _normals(P: np.ndarray, max_jump_rel: float = 0.05) -> np.ndarray:  # [h, w, 3] -> [h, w, 3] (NaN)
+def grid_normals(P: np.ndarray, max_jump_rel: float = 0.05) -> np.ndarray:  # [h, w, 3] -> [h, w, 3] (NaN)
     N = np.full_like(P, np.nan)
     dx = P[1:-1, 2:] - P[1:-1, :-2]
     dy = P[2:, 1:-1] - P[:-2, 1:-1]
@@ -124,9 +124,9 @@ def icp_point_to_plane(
     inliers, rmse, cond = 0, float("nan"), 0.0
     H = None
     for stride in strides:
-        Ps, _ = _points(depth_src, intr, stride)
-        Pt, Kt = _points(depth_tgt, intr, stride)
-        Nt = _normals(Pt)
+        Ps, _ = strided_points(depth_src, intr, stride)
+        Pt, Kt = strided_points(depth_tgt, intr, stride)
+        Nt = grid_normals(Pt)
         src = Ps.reshape(-1, 3)
         src = src[np.isfinite(src).all(1)]
         h, w = Pt.shape[:2]

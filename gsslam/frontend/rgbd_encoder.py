@@ -34,8 +34,9 @@ from gsslam.frontend.encoder import (
 )
 from gsslam.frontend.flow import FlowEstimator, forward_backward_mask, resize_flow, textured_mask
 from gsslam.frontend.icp import icp_point_to_plane
-from gsslam.frontend.pose_estimation import pnp_from_flow, pose_distance
-from gsslam.geometry import depth_to_points, invert_T, so3_log
+from gsslam.frontend.joint_pose import joint_pose
+from gsslam.frontend.pose_estimation import pnp, pose_distance, random_flow_matches
+from gsslam.geometry import backproject, depth_to_points, invert_T, so3_log
 from gsslam.types import CameraIntrinsics, Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
@@ -178,16 +179,9 @@ class RGBDEncoder:
         valid = forward_backward_mask(fw, bw, FB_THRESHOLD_PX) & textured_mask(
             imgs[i - 1]
         )  # flow is blind elsewhere
-        res = pnp_from_flow(
-            depths[i - 1],
-            fw,
-            valid,
-            intr.K,
-            self.cfg.ransac_threshold_px,
-            self.cfg.min_inliers,
-            self.rng,
-            self.cfg.max_points_per_frame,
-        )
+        uv_s, uv_t, z = random_flow_matches(fw, valid, depths[i - 1], self.cfg.max_points_per_frame, self.rng)
+        X = backproject(intr.K, uv_s, z)  # [N, 3] in frame i-1
+        res = pnp(X, uv_t, intr.K, self.cfg.ransac_threshold_px, self.cfg.min_inliers)
         meta["pnp_inliers"].append(res.inliers)
         T = res.T_tgt_src
         if T is None:
@@ -207,6 +201,27 @@ class RGBDEncoder:
                 T = icp.T_tgt_src
             elif not icp.ok:
                 meta["icp_rejected"].append((i, icp.reason))
+        if (
+            self.cfg.rgbd_joint_pose
+            and res.T_tgt_src is not None
+            and (not self.use_icp or (self.cfg.rgbd_joint_with_icp and not self.check.mismatch))
+        ):
+            joint = joint_pose(
+                X,
+                uv_t,
+                depths[i - 1],
+                depths[i],
+                intr,
+                res.T_tgt_src,
+                flow_weight=self.cfg.rgbd_joint_flow_weight,
+                strides=ICP_STRIDES,
+                inlier_px=self.cfg.ransac_threshold_px,
+            )
+            if joint.ok:
+                T = joint.T_tgt_src
+                meta["joint_posed"].append(i)
+            else:
+                meta["joint_rejected"].append((i, joint.reason))
         if self.cfg.rgbd_odometry:
             ok, T_odo = rgbd_odometry((imgs[i - 1], depths[i - 1]), (imgs[i], depths[i]), intr, T, self.cfg)
             dt, dr = pose_distance(T, T_odo)
@@ -238,6 +253,8 @@ class RGBDEncoder:
             "direct_rejected": [],
             "icp_rejected": [],
             "icp_direct_rejected": [],
+            "joint_rejected": [],
+            "joint_posed": [],
             "degenerate": False,
         }
         n = len(frames)
@@ -246,8 +263,10 @@ class RGBDEncoder:
             T_i_prev = self._frame_to_frame(frames, imgs, depths, i, intr, meta)
             T_chain = T_local[i - 1] @ invert_T(T_i_prev)  # T_0_i
             T_local[i] = T_chain
-            if self.use_icp and self.cfg.rgbd_icp_direct and i > 1:
-                # keyframe-to-keyframe: frame i straight against frame 0 stops the chained drift
+            direct = self.use_icp and self.cfg.rgbd_icp_direct and i > 1
+            if direct and not meta["joint_posed"]:
+                # keyframe-to-keyframe: frame i straight against frame 0 stops the chained drift (not
+                # after joint poses: depth alone from frame 0 undid their gain, docs/results.md, session 8)
                 icp = icp_point_to_plane(depths[0], depths[i], intr, invert_T(T_chain), strides=ICP_STRIDES)
                 if icp.ok:
                     T_local[i] = invert_T(icp.T_tgt_src)

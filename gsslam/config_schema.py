@@ -240,7 +240,8 @@ class PipelineConfig:
     pose_outlier_max_dev_m: float = 0.02  # non-keyframe this far (+ half its keyframes' gap) off their path: interpolated (0: off)
     pose_outlier_max_dev_deg: float = 3.0  # the same for the rotation (+ half the keyframes' rotation)
     track_icp: bool = False  # RGB-D: refine each tracked frame's PnP pose by ICP against its keyframe's depth
-    track_icp_fallback: bool = False  # RGB-D: a frame whose PnP is refused is tracked by ICP on depth (from the ungated PnP pose or a constant-velocity prediction) instead of failing (off: +38 % on teddy200_fbf_7scenes, docs/results.md)
+    track_icp_fallback: bool = True  # RGB-D: a frame whose PnP is refused even after a promoted keyframe (track_icp_promote_first) is tracked by ICP on depth (from the ungated PnP pose or a constant-velocity prediction) instead of failing (session 8: on; docs/results.md)
+    track_icp_promote_first: bool = True  # RGB-D ICP fallback only where promoting the last tracked frame to a keyframe and retrying PnP cannot help (the retry, or no frame to promote): the keyframe set stays that of PnP tracking (false: ICP at once, session 7: +15 % on teddy200_fbf_7scenes loops on, docs/results.md)
     track_icp_min_fitness: float = 0.4  # RGB-D ICP fallback: ICP matched points / the frame's valid depth points (finest level) below this: failed (teddy, right poses: 0.49-0.63)
 
 

@@ -151,7 +151,10 @@ class Pipeline:
         flow, matches, status = self.tracker.track(frame)
         T_ref_cur = None
         if status.ok and not self.monocular:  # PnP, or ICP where PnP is refused (frontend/rgbd_tracking.py)
-            track = relative_rgbd(self, frame, matches, frame_depth(self.tracker.ref))
+            # ICP only where a promoted keyframe cannot help (pipeline.track_icp_promote_first): the
+            # retry against it, or no tracked frame to promote
+            last_resort = retry or self.last_good is None or not self.cfg.pipeline.track_icp_promote_first
+            track = relative_rgbd(self, frame, matches, frame_depth(self.tracker.ref), fallback=last_resort)
             T_ref_cur = track.T_ref_cur
             if T_ref_cur is None:
                 status.ok, status.reason = False, "pnp"

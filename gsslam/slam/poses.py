@@ -31,9 +31,10 @@ def relative_pnp(p, matches: FrameMatches, depth: np.ndarray) -> np.ndarray | No
     return T
 
 
-def relative_rgbd(p, frame, matches: FrameMatches, depth_ref: np.ndarray):
+def relative_rgbd(p, frame, matches: FrameMatches, depth_ref: np.ndarray, fallback: bool = True):
     """RGB-D ``T_ref_cur`` of ``frame`` by PnP on the flow matches, ICP on depth where PnP is refused
-    (:func:`gsslam.frontend.rgbd_tracking.track_relative_pose`; ``.T_ref_cur`` None: failed)."""
+    (:func:`gsslam.frontend.rgbd_tracking.track_relative_pose`; ``.T_ref_cur`` None: failed).
+    ``fallback=False``: no ICP fallback for this attempt (the pipeline promotes a keyframe first)."""
     from gsslam.frontend.rgbd_tracking import TrackParams, track_relative_pose
 
     pc = p.cfg.pipeline
@@ -42,11 +43,11 @@ def relative_rgbd(p, frame, matches: FrameMatches, depth_ref: np.ndarray):
         pc.min_pnp_inlier_ratio,
         pc.pnp_threshold_px,
         refine_icp=pc.track_icp or getattr(p.encoder, "use_icp", False),
-        icp_fallback=pc.track_icp_fallback,
+        icp_fallback=pc.track_icp_fallback and fallback,
         icp_min_fitness=pc.track_icp_min_fitness,
     )
     T_pred = None
-    if pc.track_icp_fallback:  # the constant-velocity start is read only by the ICP fallback
+    if params.icp_fallback:  # the constant-velocity start is read only by the ICP fallback
         T_world_ref = pose_now(p, matches.ref_index)
         T_world_pred = p.motion.predict(frame.index)
         if T_world_ref is not None and T_world_pred is not None:

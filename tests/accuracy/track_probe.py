@@ -1,10 +1,10 @@
 """Why RGB-D tracking fails: a per-frame log of the tracker on a (degraded) teddy playback.
 
     PYTHONPATH=. python tests/accuracy/track_probe.py [--stride 2] [--pattern fbfbf] [--max-frames 300] \
-        [--loops off] [--set key=value ...]
+        [--loops off] [--set key=value ...] [--row teddy200_fbf_7scenes] [--dump run.npz]
 
 Runs the pipeline in process (map off, RGB-D) on teddy played ``stride`` times faster with motion blur and
-exposure swings (the ``teddy200_s2_blur`` row) and prints ATE (all frames / keyframes / the others), the
+exposure swings (the ``teddy200_s2_blur`` row; ``--row``: any playback row of the tracking suite) and prints ATE (all frames / keyframes / the others), the
 events, then one JSON line per tracking attempt: frame ``f`` and keyframe ``ref``, the tracker's
 photo-consistency ``pc`` and median flow ``med`` (px), the exposure gain ratio keyframe -> frame ``gain``,
 the RGB-D step's ``source`` (pnp / icp / "" failed), PnP inliers / matches, ICP fitness, the ground-truth
@@ -15,9 +15,11 @@ motion keyframe -> frame and the error of the tracked pose. Not a test: a measur
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 
@@ -25,12 +27,24 @@ import gsslam.slam.pipeline as P
 from gsslam.config import load_config
 from gsslam.datasets.base import open_dataset
 from gsslam.eval.ate import ate_from_pairs
+from gsslam.frontend.depth_registration import IDENTITY, register_frame, registration_correction
+from gsslam.frontend.flow import make_flow_estimator
 from gsslam.geometry import invert_T, so3_log
 
 
 def _motion(T: np.ndarray) -> tuple[float, float]:  # -> (cm, deg)
     deg = float(np.degrees(np.linalg.norm(so3_log(T[:3, :3]))))
     return round(100 * float(np.linalg.norm(T[:3, 3])), 2), round(deg, 2)
+
+
+def _row(name: str) -> tuple[dict, int | None]:  # -> (playback kwargs, frames)
+    import yaml
+
+    suite = Path(__file__).resolve().parents[2] / "gsslam" / "run" / "suites" / "tracking.yaml"
+    for row in yaml.safe_load(suite.read_text())["sequences"]:
+        if row["name"] == name and row.get("dataset") == "playback":
+            return dict(row["kwargs"]), row.get("frames")
+    raise SystemExit(f"no playback row {name!r} in {suite}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,13 +56,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loops", default="off")
     ap.add_argument("--set", action="append", default=[], dest="overrides")
     ap.add_argument("--max-frames", type=int, default=300)
+    ap.add_argument("--row", default=None, help="a playback row of gsslam/run/suites/tracking.yaml (its kwargs)")
+    ap.add_argument("--dump", default=None, help="write per-frame poses, keyframes and attempts (.npz)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
-    degrade = None if a.no_degrade else {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
-    ds = open_dataset("playback", a.seq, base="tum", pattern=a.pattern, stride=a.stride, degrade=degrade)
+    if a.row is not None:
+        kw, frames = _row(a.row)
+        ds = open_dataset("playback", a.seq, **kw)
+        a.max_frames = frames or len(ds)
+    else:
+        degrade = None if a.no_degrade else {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
+        ds = open_dataset("playback", a.seq, base="tum", pattern=a.pattern, stride=a.stride, degrade=degrade)
     loops = "true" if a.loops == "on" else "false"
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.overrides], mode="rgbd")
-    pipe = P.Pipeline(cfg, ds.intrinsics)
+    reg = IDENTITY  # as the runner (gsslam.run.sequence): unregistered depth re-projected into colour
+    if cfg.encoder.colour_focal_auto:
+        first = [ds[i] for i in range(min(len(ds), cfg.encoder.colour_focal_frames, a.max_frames))]
+        reg, _ = registration_correction(
+            first, make_flow_estimator(cfg.flow), min_dev=cfg.encoder.colour_focal_min_dev,
+            min_baseline_m=cfg.encoder.colour_focal_min_baseline_m,
+        )  # fmt: skip
+    if not reg.is_identity():
+        cfg = dataclasses.replace(cfg, encoder=dataclasses.replace(cfg.encoder, rgbd_icp=True))
+    pipe = P.Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics))
     gt: dict[int, np.ndarray | None] = {}
     rec: list[dict] = []
     track, rgbd = pipe.tracker.track, P.relative_rgbd
@@ -65,8 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         rec.append(d)
         return flow, m, st
 
-    def logged_rgbd(p, frame, matches, depth_ref):
-        tr = rgbd(p, frame, matches, depth_ref)
+    def logged_rgbd(p, frame, matches, depth_ref, **kw):
+        tr = rgbd(p, frame, matches, depth_ref, **kw)
         d = rec[-1]
         d.update(source=tr.source, inliers=tr.pnp_inliers, matches=tr.pnp_matches)
         d["fitness"] = round(tr.icp_fitness, 3)
@@ -79,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     P.relative_rgbd = logged_rgbd  # the pipeline calls it by this module-level name
     n = min(a.max_frames, len(ds))
     for i in range(n):
-        f = ds[i]
+        f = register_frame(ds[i], reg)
         gt[f.index] = f.T_world_cam_gt
         pipe.process(f)
     pipe.finish()
@@ -94,10 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{ds.name}: {n} frames; ATE {100 * res.stats.rmse:.3f} cm over {len(idx)} frames; "
           f"keyframes {rms(e[kf]):.3f} ({int(kf.sum())}), others {rms(e[~kf]):.3f}")  # fmt: skip
     print("events:", dict(Counter(ev.kind for ev in pipe.events)), "ICP-tracked:", pipe.n_icp_tracked)
+    print("registration:", reg, "loops:", pipe.loop_stage.metrics())
     for ev in pipe.events:
         print("  ", ev.frame_index, ev.kind, ev.detail[:80])
     for d in rec:
         print(json.dumps(d))
+    if a.dump:
+        np.savez(
+            a.dump, idx=np.array(idx), est=np.array([est[i] for i in idx]), gt=np.array([gt[i] for i in idx]),
+            err=e, keyframes=np.array(sorted(pipe.keyframes)), records=json.dumps(rec),
+            events=json.dumps([(ev.frame_index, ev.kind) for ev in pipe.events]),
+        )
     return 0
 
 

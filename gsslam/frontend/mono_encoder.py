@@ -114,7 +114,10 @@ class MonoEncoder:
         tv, ref = None, None
         for r in range(n - 1, 0, -1):
             uv0, uvr, _ = random_flow_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
-            res = two_view_pose(K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg)
+            res = two_view_pose(
+                K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg,
+                method=cfg.mono_essential_method,
+            )  # fmt: skip
             meta.setdefault("two_view", []).append(
                 {
                     "frame": r,
@@ -165,6 +168,17 @@ class MonoEncoder:
             else:
                 T_i_0[i] = res.T_tgt_src
 
+        if cfg.mono_ba_tracks == "all":
+            # the BA's tracks: every sampled frame-0 track seen in the reference frame, triangulated
+            # with the two-view pose, not only the essential matrix's inliers (that selection follows
+            # the RANSAC sample: one rotation error kept the tracks that agree with it; docs/frontend.md)
+            uv_all, uv_ref, _ = random_flow_matches(fw[ref], valid[ref], None, cfg.max_points_per_frame, self.rng)
+            X_all, _, _ = triangulate_rays(K, uv_all, uv_ref, T_i_0[ref])
+            keep = np.isfinite(X_all).all(1) & (X_all[:, 2] > 0)
+            if keep.sum() >= cfg.min_inliers:
+                uv0, X0 = uv_all[keep], X_all[keep]
+                meta["ba_tracks"] = int(keep.sum())
+        meta["T_i_0_pnp"] = T_i_0.copy()  # [n, 4, 4] before the BA (tests/accuracy/mono_rotation_probe.py)
         # bundle adjustment over the frame-0 tracks seen in every frame where they are valid
         obs = np.full((n, len(uv0), 2), np.nan)
         ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
@@ -180,6 +194,7 @@ class MonoEncoder:
             K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px,
             rho_prior=rho_prior, prior_sigma_rel=sigma,
         )  # fmt: skip
+        meta["T_i_0_ba"] = T_i_0.copy()
         if rho_prior is None:
             g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
         else:

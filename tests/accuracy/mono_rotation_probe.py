@@ -51,7 +51,8 @@ def pair_rotations(enc: MonoEncoder, frames, cfg) -> np.ndarray:
     for i in range(1, len(frames)):
         f = enc.flow(imgs[i - 1], imgs[i])
         b = enc.flow(imgs[i], imgs[i - 1])
-        ok = forward_backward_mask(f, b, 1.0, relative=0.01) & textured_mask(imgs[i - 1], cfg.min_texture_gradient)
+        ok = forward_backward_mask(f, b, 1.0, relative=0.01)
+        ok &= textured_mask(imgs[i - 1], cfg.min_texture_gradient)
         uva, uvb, _ = random_flow_matches(f, ok, None, cfg.max_points_per_frame, rng)
         res = two_view_pose(intr.K, uva, uvb, cfg.ransac_threshold_px, cfg.min_inliers, 0.0)
         if res.T_b_a is None:
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         for k, v in row.items():
             allv[k].extend(v)
 
-        def mm(k):
+        def mm(k, row=row):
             v = row.get(k)
             return f"{np.mean(v):5.2f}/{np.max(v):5.2f}" if v else "  -  /  -  "
 

@@ -14,10 +14,10 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
    bundle adjustment of all poses and frame-0 inverse depths (its tracks: the essential inliers, or
    with ``encoder.mono_ba_tracks=all`` every sampled track triangulated with the two-view pose, so
    the BA does not inherit the RANSAC sample's rotation: docs/results.md, session 8); with
-   ``encoder.mono_shared_depth_sigma > 0`` (off by default: docs/results.md, sessions 6-7) the shared depth is a prior on those
-   inverse depths (relative std, divided by the shared depth's own confidence: its parallax in the
-   previous submap; none where that is low), so the translations are tied to the previous
-   submap's geometry track by track instead of by one median.
+   ``encoder.mono_shared_depth_sigma > 0`` (off by default: docs/results.md, sessions 6-7) the
+   shared depth is a prior on those inverse depths (relative std, divided by the shared depth's own
+   confidence: its parallax in the previous submap; none where that is low), so the translations
+   are tied to the previous submap's geometry track by track instead of by one median.
 5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
    baseline; confidence grows with the parallax angle.
 

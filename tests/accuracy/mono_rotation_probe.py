@@ -14,7 +14,8 @@ not depend on it outside the degenerate case), and the probe prints, per submap,
 - ``ba``: after the bundle adjustment (the encoder's output before the dense depth);
 - ``pair``: for comparison, the rotations chained from an essential matrix of each consecutive pair's own
   (unchained) flow, i - 1 -> i;
-- ``out``: the encoder's final ``T_local_cam`` (what the graph receives).
+- ``out``: the encoder's final ``T_local_cam`` (what the graph receives);
+- ``trans%``: its local translations after one least-squares scale, mean error / mean GT distance.
 
 Not a test: a measuring tool (docs/results.md, "Mono local rotations, session 8").
 """
@@ -77,8 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     for s in a.kw:
         k, v = s.split("=", 1)
         kw[k] = yaml.safe_load(v)
-    ds = open_dataset(a.dataset, a.seq, with_depth=False, **kw) if a.dataset != "playback" else open_dataset(
-        a.dataset, a.seq, **kw
+    ds = (
+        open_dataset(a.dataset, a.seq, with_depth=False, **kw)
+        if a.dataset != "playback"
+        else open_dataset(a.dataset, a.seq, **kw)
     )
     ts = np.asarray(ds.timestamps())
     kf_ts = np.loadtxt(f"{a.run_dir}/keyframes.tum", comments="#", usecols=0, ndmin=1)
@@ -90,8 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         groups = groups[: a.max_submaps]
     enc = MonoEncoder(cfg.encoder, make_flow_estimator(cfg.flow))
     print(f"{ds.name}: {len(kf)} keyframes, {len(groups)} submaps; {' '.join(a.overrides)}")
-    print(" sub  frames     par   tv   pnp(mean/max)  ba(mean/max)  out(mean/max)  pair(mean/max)  gt rot")
-    allv: dict[str, list[float]] = {"pnp": [], "ba": [], "out": [], "pair": [], "tv": []}
+    print(" sub  frames     par   tv   pnp(mean/max)  ba(mean/max)  out(mean/max)  pair(mean/max)", end="")
+    print("  gt rot  trans%")
+    allv: dict[str, list[float]] = {"pnp": [], "ba": [], "out": [], "pair": [], "tv": [], "trans%": []}
     for si, g in enumerate(groups):
         frames = [ds[i] for i in g]
         gt = [f.T_world_cam_gt for f in frames]
@@ -106,6 +110,14 @@ def main(argv: list[str] | None = None) -> int:
             if T_i_0 is not None:
                 row[key] = [rot_err_deg(T_i_0[i][:3, :3].T, R_gt[i]) for i in range(1, len(g))]
         row["out"] = [rot_err_deg(e.T_local_cam[i][:3, :3], R_gt[i]) for i in range(1, len(g))]
+        # local translations after one least-squares scale: the error relative to the mean GT path (%)
+        t_e = e.T_local_cam[1:, :3, 3]
+        t_g = np.stack([(invert_T(gt[0]) @ x)[:3, 3] for x in gt[1:]])
+        sc = float(np.sum(t_e * t_g) / max(np.sum(t_e * t_e), 1e-12))
+        row["trans%"] = [
+            100
+            * float(np.mean(np.linalg.norm(sc * t_e - t_g, axis=1)) / np.mean(np.linalg.norm(t_g, axis=1)))
+        ]
         ref = m.get("reference_frame")
         tv = float("nan")
         if ref is not None and m.get("T_i_0_pnp") is not None:
@@ -124,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         gtr = np.degrees(np.linalg.norm(so3_log(R_gt[-1])))
         print(
             f" {si:3d} {g[0]:4d}-{g[-1]:<4d} {m.get('parallax_deg', float('nan')):5.1f} {tv:5.2f} "
-            f"{mm('pnp')}   {mm('ba')}   {mm('out')}   {mm('pair')}   {gtr:5.1f} {m.get('reason', '')}"
+            f"{mm('pnp')}   {mm('ba')}   {mm('out')}   {mm('pair')}   {gtr:5.1f} {row['trans%'][0]:5.1f} "
+            f"{m.get('reason', '')}"
         )
     print(
         "mean over all local poses (deg): "

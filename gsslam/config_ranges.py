@@ -73,6 +73,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.mono_dis_preset": ("", "ultrafast", "fast", "medium"),
     "encoder.mono_shared_depth_sigma": Range(0.0, 1.0),
     "encoder.mono_shared_depth_min_confidence": Range(0.0, 1.0),
+    "encoder.mono_essential_method": ("ransac", "magsac"),
+    "encoder.mono_ba_tracks": ("two_view", "all"),
     "encoder.rgbd_icp_auto_min_ratio": POS,
     "encoder.rgbd_icp_auto_max_ratio": POS,
     "encoder.rgbd_joint_flow_weight": POS,

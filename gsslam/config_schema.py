@@ -68,6 +68,8 @@ class EncoderConfig:
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)
     mono_shared_depth_by_confidence: bool = True  # mono: that std / the shared depth's confidence (parallax / 4 min_parallax)
     mono_shared_depth_min_confidence: float = 0.5  # mono: no prior where that confidence is below this
+    mono_essential_method: str = "ransac"  # mono: robust estimator of the two-view essential matrix (ransac | magsac)
+    mono_ba_tracks: str = "two_view"  # mono: local BA tracks: the essential inliers (two_view) or all sampled (all)
 
 
 @dataclass(frozen=True)

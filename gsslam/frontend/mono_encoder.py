@@ -6,15 +6,18 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
    forward-backward against the chained backward flows; only textured pixels are used.
 2. Two-view initialisation: essential matrix (RANSAC) + recoverPose between frame 0 and the
    farthest frame with good geometry, checked triangulation (cheirality, reprojection, parallax)
-   and homography-vs-essential model selection (:func:`gsslam.frontend.two_view.two_view_pose`).
+   and homography-vs-essential model selection (:func:`gsslam.frontend.two_view.two_view_pose`;
+   RANSAC, or MAGSAC++ with ``encoder.mono_essential_method=magsac``).
 3. One scale for the submap: with ``shared_depth`` the median ratio shared/triangulated depth
    (so the scale chains across submaps); without, median frame-0 depth = 1.
 4. PnP RANSAC + LM for the other frames against the triangulated frame-0 points, then a small
-   bundle adjustment of all poses and frame-0 inverse depths; with ``encoder.mono_shared_depth_sigma
-   > 0`` (off by default: docs/results.md, sessions 6-7) the shared depth is a prior on those
-   inverse depths (relative std, divided by the shared depth's own confidence: its parallax in the
-   previous submap; none where that is low), so the translations are tied to the previous
-   submap's geometry track by track instead of by one median.
+   bundle adjustment of all poses and frame-0 inverse depths (its tracks: the essential inliers, or
+   with ``encoder.mono_ba_tracks=all`` every sampled track triangulated with the two-view pose, so
+   the BA does not inherit the RANSAC sample's rotation: docs/results.md, session 8); with
+   ``encoder.mono_shared_depth_sigma > 0`` (off by default: docs/results.md, sessions 6-7) the
+   shared depth is a prior on those inverse depths (relative std, divided by the shared depth's own
+   confidence: its parallax in the previous submap; none where that is low), so the translations
+   are tied to the previous submap's geometry track by track instead of by one median.
 5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
    baseline; confidence grows with the parallax angle.
 
@@ -114,7 +117,10 @@ class MonoEncoder:
         tv, ref = None, None
         for r in range(n - 1, 0, -1):
             uv0, uvr, _ = random_flow_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
-            res = two_view_pose(K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg)
+            res = two_view_pose(
+                K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg,
+                method=cfg.mono_essential_method,
+            )  # fmt: skip
             meta.setdefault("two_view", []).append(
                 {
                     "frame": r,
@@ -165,6 +171,19 @@ class MonoEncoder:
             else:
                 T_i_0[i] = res.T_tgt_src
 
+        if cfg.mono_ba_tracks == "all":
+            # the BA's tracks: every sampled frame-0 track seen in the reference frame, triangulated
+            # with the two-view pose, not only the essential matrix's inliers (that selection follows
+            # the RANSAC sample: one rotation error kept the tracks that agree with it; docs/frontend.md)
+            uv_all, uv_ref, _ = random_flow_matches(
+                fw[ref], valid[ref], None, cfg.max_points_per_frame, self.rng
+            )
+            X_all, _, _ = triangulate_rays(K, uv_all, uv_ref, T_i_0[ref])
+            keep = np.isfinite(X_all).all(1) & (X_all[:, 2] > 0)
+            if keep.sum() >= cfg.min_inliers:
+                uv0, X0 = uv_all[keep], X_all[keep]
+                meta["ba_tracks"] = int(keep.sum())
+        meta["T_i_0_pnp"] = T_i_0.copy()  # [n, 4, 4] before the BA (tests/accuracy/mono_rotation_probe.py)
         # bundle adjustment over the frame-0 tracks seen in every frame where they are valid
         obs = np.full((n, len(uv0), 2), np.nan)
         ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
@@ -180,6 +199,7 @@ class MonoEncoder:
             K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px,
             rho_prior=rho_prior, prior_sigma_rel=sigma,
         )  # fmt: skip
+        meta["T_i_0_ba"] = T_i_0.copy()
         if rho_prior is None:
             g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
         else:

@@ -17,6 +17,8 @@ from gsslam.geometry import invert_T
 
 log = logging.getLogger(__name__)
 
+ESSENTIAL_METHODS = {"ransac": cv2.RANSAC, "magsac": cv2.USAC_MAGSAC}
+
 
 @dataclass
 class TwoViewResult:
@@ -84,19 +86,22 @@ def two_view_pose(
     threshold_px: float,
     min_inliers: int,
     min_parallax_deg: float,
+    method: str = "ransac",
 ) -> TwoViewResult:
     """Essential matrix (RANSAC) + recoverPose + checked triangulation, with model selection.
 
     Rejected (``T_b_a = None``) when there are too few matches or inliers, when the median
     parallax of the triangulated inliers is below ``min_parallax_deg`` (pure rotation / tiny
     baseline), or when a homography explains the matches as well as the essential matrix *and*
-    the parallax is small (the two-view geometry is then not determined).
+    the parallax is small (the two-view geometry is then not determined). ``method``: the robust
+    estimator of the essential matrix, "ransac" (OpenCV's RANSAC) or "magsac" (MAGSAC++, whose
+    model does not follow its random sample; docs/frontend.md).
     """
     empty = np.zeros((0, 3)), np.zeros((0, 2))
     if len(uv_a) < max(8, min_inliers):
         return TwoViewResult(None, *empty, 0.0, 0, 0, f"too few matches ({len(uv_a)})")
     pa, pb = uv_a.astype(np.float64), uv_b.astype(np.float64)
-    E, mask_e = cv2.findEssentialMat(pa, pb, K, cv2.RANSAC, 0.999, threshold_px)
+    E, mask_e = cv2.findEssentialMat(pa, pb, K, ESSENTIAL_METHODS[method], 0.999, threshold_px)
     H, mask_h = cv2.findHomography(pa, pb, cv2.RANSAC, 2.0 * threshold_px)
     n_h = int(mask_h.sum()) if mask_h is not None else 0
     if E is None or E.shape != (3, 3) or mask_e is None:

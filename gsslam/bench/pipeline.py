@@ -232,5 +232,6 @@ def _one_length(
         "psnr_keyframes_native": (m.get("mapper") or {}).get("psnr_keyframes_native"),
         "ate_rmse_m": m["ate"]["rmse_m"] if m.get("ate") else None,
         "loadavg_1min_before_after": [round(load_before, 1), round(os.getloadavg()[0], 1)],
+        "pid": os.getpid(),
     }
     return row, rss

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from gsslam.bench.pipeline import growth_mb_per_100_frames, run_lengths
@@ -26,10 +28,12 @@ def test_lengths_report_stages_memory_and_a_chart(bundled_tum, tmp_path):
         assert r["cpu_s"] > 0
     assert len(res["rss_by_frame"]["40 frames"]) == 4  # every 10 frames
     assert (tmp_path / "rss.png").stat().st_size > 1000
-    # each length runs in a fresh process: the 40-frame run starts where the 20-frame one started
-    # (one process used to carry the first run's memory into the second)
+    # each length runs in a fresh process of its own (one process used to carry the first run's memory
+    # into the second), so both start near the same resident memory at frame 10. That memory moves
+    # with allocator and thread timing: 354 vs 446 MB was seen in CI (session 8), 0.26x apart.
+    assert len({a["pid"], b["pid"], os.getpid()}) == 3
     (f20, mb20), (f40, mb40) = res["rss_by_frame"]["20 frames"][0], res["rss_by_frame"]["40 frames"][0]
-    assert f20 == f40 == 10 and abs(mb40 - mb20) < 0.25 * mb20, (mb20, mb40)
+    assert f20 == f40 == 10 and abs(mb40 - mb20) < 0.5 * mb20, (mb20, mb40)
     for r, key in ((a, "20 frames"), (b, "40 frames")):
         assert r["peak_rss_mb"] >= max(mb for _, mb in res["rss_by_frame"][key]) - 1  # VmHWM: the peak
 

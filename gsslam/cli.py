@@ -30,6 +30,7 @@ import typer
 
 from gsslam.cli_batch import batch_cmd
 from gsslam.cli_bench import bench_app
+from gsslam.cli_progress import StageBar
 from gsslam.errors import GsslamError
 
 app = typer.Typer(
@@ -155,7 +156,7 @@ def run_cmd(
                 param_hint="--intrinsics",
             )
         ds_kwargs["intrinsics_file"] = intrinsics
-    bar = _StageBar() if progress else None
+    bar = StageBar() if progress else None
     try:
         result = run_sequence(
             path, dataset, cfg, out, max_frames=max_frames, progress=bar.frames if bar else False,
@@ -170,41 +171,6 @@ def run_cmd(
         from gsslam.viz.rerun_log import record_run
 
         typer.echo(f"rerun recording: {record_run(out, out / 'run.rrd')}")
-
-
-class _StageBar:
-    """One tqdm bar that restarts (own total, rate and ETA) at every stage of a run."""
-
-    def __init__(self) -> None:
-        self._bar = None  # created at the first update, so that errors before the run stay one line
-        self.name = "tracking"
-
-    @property
-    def bar(self):
-        if self._bar is None:
-            from tqdm import tqdm
-
-            self._bar = tqdm(desc="tracking", unit="frame", file=sys.stderr, dynamic_ncols=True)
-        return self._bar
-
-    def frames(self, done: int, total: int, fps: float) -> None:
-        self.bar.total = total
-        self.bar.set_postfix_str(f"{fps:.1f} FPS", refresh=False)
-        self.bar.update(done - self.bar.n)
-
-    def stage(self, name: str, done: int, total: int) -> None:
-        if name != self.name:
-            self.name = name
-            self.bar.reset(total=total)
-            self.bar.set_description(name, refresh=False)
-            self.bar.unit = "step" if name == "final pass" else "it"
-            self.bar.set_postfix_str("", refresh=False)
-        self.bar.total = total
-        self.bar.update(done - self.bar.n)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
 
 
 def _dataset_args(items: list[str]) -> dict:

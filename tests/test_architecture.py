@@ -131,8 +131,8 @@ def _layer(module: str) -> str:
     return parts[1] if parts[0] == "gsslam" and len(parts) > 1 else parts[0]
 
 
-# the command line: cli.py (the app, run_cli) + the commands it registers from cli_batch.py, cli_bench.py
-CLI = ("cli", "cli_batch", "cli_bench")
+# the command line: cli.py (the app, run_cli) + the commands it registers from cli_batch.py, cli_bench.py + its progress bar (cli_progress.py)
+CLI = ("cli", "cli_batch", "cli_bench", "cli_progress")
 # layer -> the gsslam layers it must never import
 FORBIDDEN = {
     **{low: {"slam", "run", *CLI, "bench", "__main__"}

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from gsslam.cli import _StageBar
+from gsslam.cli_progress import StageBar
 
 
 def test_stage_bar_restarts_at_every_stage(capsys):
-    bar = _StageBar()
+    bar = StageBar()
     bar.frames(10, 20, 5.0)
     assert (bar.bar.n, bar.bar.total) == (10, 20) and bar.bar.desc.startswith("tracking")
     bar.stage("final pass", 0, 2000)

@@ -26,7 +26,8 @@ from gsslam.frontend.encoder import make_encoder
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.geometry import invert_T, so3_log
 
-BLUR = dict(base="tum", pattern="fbfbf", stride=2, degrade={"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150})
+DEG = {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
+BLUR = dict(base="tum", pattern="fbfbf", stride=2, degrade=DEG)
 MIS = {"baseline_m": 0.025, "focal_scale": 1.114, "report": "depth"}
 EST = DepthRegistration(1.1133, 0.0177, "depth", ok=True)
 TRUE = DepthRegistration(1.114, 0.025, "depth", ok=True)
@@ -75,9 +76,10 @@ def main() -> None:
                 den += np.linalg.norm(Tg[:3, 3]) ** 2
                 terr.append(np.linalg.norm(Te[:3, 3] - Tg[:3, 3]))
                 rerr.append(np.degrees(np.linalg.norm(so3_log(Te[:3, :3].T @ Tg[:3, :3]))))
-        print(f"{name} reg={reg and (reg.ratio, reg.baseline_m)}: scale {num / den:.4f} terr {100 * np.mean(terr):.3f} cm "
-              f"rerr {np.mean(rerr):.3f} deg; PnP/ICP rot ratio {enc.check.ratio:.3f}, use_icp {use_icp}, "
-              f"joint {joint}/{len(terr)}; check (pairs, ratio, latched) per submap {trace}", flush=True)  # fmt: skip
+        print(f"{name} reg={reg and (reg.ratio, reg.baseline_m)}: scale {num / den:.4f} "
+              f"terr {100 * np.mean(terr):.3f} cm rerr {np.mean(rerr):.3f} deg; "
+              f"PnP/ICP rot ratio {enc.check.ratio:.3f}, use_icp {use_icp}, joint {joint}/{len(terr)}; "
+              f"check (pairs, ratio, latched) per submap {trace}", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-frames", type=int, default=300)
     ap.add_argument("--row", default=None, help="a playback row of gsslam/run/suites/tracking.yaml (its kwargs)")
     ap.add_argument("--dump", default=None, help="write per-frame poses, keyframes and attempts (.npz)")
-    ap.add_argument("--reg", default=None, help="K,B,GIVEN: apply this depth registration instead of estimating")
+    ap.add_argument("--reg", default=None, help="K,B,GIVEN: apply this registration, no estimate")
     ap.add_argument("--no-force-icp", action="store_true", help="keep encoder.rgbd_icp as configured")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)

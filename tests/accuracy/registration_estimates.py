@@ -1,12 +1,14 @@
 """Depth-to-colour registration estimates on teddy playbacks, with and without the fallback pairs.
 
-    PYTHONPATH=. python tests/accuracy/registration_estimates.py ROW [ROW ...] [--frames 40] [--gaps 4 2]
+    PYTHONPATH=. python tests/accuracy/registration_estimates.py ROW [ROW ...] [--frames 40] \
+        [--fallback none 2]
 
 ROW: ``s2_7s`` (``teddy200_s2_blur_7scenes``), ``s2`` (``teddy200_s2_blur``), ``s3``
 (``teddy200_s3_blur_rgbd``), ``s3_7s`` (that playback with the 7-Scenes handout), ``bundled_7s`` /
 ``bundled`` (the bundled 60 frames played 2x with blur, as ``tests/frontend/test_registration_pairs.py``).
 For each row and fallback gap (``none`` or a number) prints the pairs, the depth-given fit (k, baseline)
-and the error at k = 1 and at the fit. Not a test: a measuring tool (docs/results.md, "Depth not registered to colour, session 9").
+and the error at k = 1 and at the fit. Not a test: a measuring tool (docs/results.md, "Depth not
+registered to colour, session 9").
 """
 
 from __future__ import annotations

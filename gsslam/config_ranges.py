@@ -81,6 +81,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_focal_frames": _ge(8),
     "encoder.colour_focal_min_dev": Range(0.0, 0.5),
     "encoder.colour_focal_min_baseline_m": Range(0.0, 0.2),
+    "encoder.colour_focal_min_gain": Range(0.0, 0.9),
+    "encoder.colour_focal_fallback_gap": Range(0, 16),
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,

@@ -63,6 +63,8 @@ class EncoderConfig:
     colour_focal_frames: int = 40  # frames read for that estimate
     colour_focal_min_dev: float = 0.02  # correct intrinsics + register depth only when |ratio - 1| exceeds this
     colour_focal_min_baseline_m: float = 0.01  # ... or |depth-colour baseline| exceeds this (m)
+    colour_focal_min_gain: float = 0.15  # ... and the fit lowers the flow reprojection error by this fraction
+    colour_focal_fallback_gap: int = 2  # frame pairs this far apart when 4 apart gives too few (a quick hand); 0: off
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

@@ -104,20 +104,30 @@ def flow_pairs(
     min_rotation_deg: float = 1.0,
     max_points: int = 3000,
     seed: int = 0,
+    fallback_gap: int | None = None,
 ) -> list[FlowPair]:
-    """Pairs ``(i, i + gap)`` (i every ``gap // 2``) whose ICP motion turns >= ``min_rotation_deg``."""
+    """Pairs ``(i, i + gap)`` (i every ``gap // 2``) whose ICP motion turns >= ``min_rotation_deg``.
+
+    ``fallback_gap``: when ``gap`` gives fewer than ``max_pairs`` pairs (a quick hand: ICP from identity
+    refuses the wider pairs), pairs ``(i, i + fallback_gap)`` fill the list up to ``max_pairs``. Where
+    ``gap`` fills it the result is the same as without (docs/results.md, "Depth not registered to colour,
+    session 9").
+    """
     rng = np.random.default_rng(seed)
     pairs: list[FlowPair] = []
-    for i in range(0, len(frames) - gap, max(1, gap // 2)):
-        fa, fb = frames[i], frames[i + gap]
-        if fa.depth is None or fb.depth is None:
-            continue
-        p = _pair(fa, fb, flow, rng, max_points)
-        if p is None or np.degrees(np.linalg.norm(so3_log(p.T_b_a[:3, :3]))) < min_rotation_deg:
-            continue
-        pairs.append(p)
-        if len(pairs) >= max_pairs:
-            break
+    for g in (gap,) if fallback_gap is None or fallback_gap == gap else (gap, fallback_gap):
+        for i in range(0, len(frames) - g, max(1, g // 2)):
+            if len(pairs) >= max_pairs:
+                break
+            fa, fb = frames[i], frames[i + g]
+            if fa.depth is None or fb.depth is None:
+                continue
+            p = _pair(fa, fb, flow, rng, max_points)
+            if p is None or np.degrees(np.linalg.norm(so3_log(p.T_b_a[:3, :3]))) < min_rotation_deg:
+                continue
+            pairs.append(p)
+        if g != gap:
+            log.info("registration pairs: %d with the fallback gap %d", len(pairs), g)
     return pairs
 
 

@@ -292,6 +292,7 @@ def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (registration 
     return registration_correction(
         frames, make_flow_estimator(cfg.flow), min_dev=enc.colour_focal_min_dev,
         min_baseline_m=enc.colour_focal_min_baseline_m,
+        min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
     )  # fmt: skip
 
 

@@ -27,7 +27,12 @@ import gsslam.slam.pipeline as P
 from gsslam.config import load_config
 from gsslam.datasets.base import open_dataset
 from gsslam.eval.ate import ate_from_pairs
-from gsslam.frontend.depth_registration import IDENTITY, register_frame, registration_correction
+from gsslam.frontend.depth_registration import (
+    IDENTITY,
+    DepthRegistration,
+    register_frame,
+    registration_correction,
+)
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.geometry import invert_T, so3_log
 
@@ -58,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-frames", type=int, default=300)
     ap.add_argument("--row", default=None, help="a playback row of gsslam/run/suites/tracking.yaml (its kwargs)")
     ap.add_argument("--dump", default=None, help="write per-frame poses, keyframes and attempts (.npz)")
+    ap.add_argument("--reg", default=None, help="K,B,GIVEN: apply this registration, no estimate")
+    ap.add_argument("--no-force-icp", action="store_true", help="keep encoder.rgbd_icp as configured")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if a.row is not None:
@@ -70,13 +77,18 @@ def main(argv: list[str] | None = None) -> int:
     loops = "true" if a.loops == "on" else "false"
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.overrides], mode="rgbd")
     reg = IDENTITY  # as the runner (gsslam.run.sequence): unregistered depth re-projected into colour
-    if cfg.encoder.colour_focal_auto:
+    if cfg.encoder.colour_focal_auto and a.reg is None:
         first = [ds[i] for i in range(min(len(ds), cfg.encoder.colour_focal_frames, a.max_frames))]
         reg, _ = registration_correction(
             first, make_flow_estimator(cfg.flow), min_dev=cfg.encoder.colour_focal_min_dev,
             min_baseline_m=cfg.encoder.colour_focal_min_baseline_m,
+            min_gain=cfg.encoder.colour_focal_min_gain,
+            fallback_gap=cfg.encoder.colour_focal_fallback_gap or None,
         )  # fmt: skip
-    if not reg.is_identity():
+    if a.reg is not None:
+        k, b, given = a.reg.split(",")
+        reg = DepthRegistration(float(k), float(b), given, ok=True)
+    if not reg.is_identity() and not a.no_force_icp:
         cfg = dataclasses.replace(cfg, encoder=dataclasses.replace(cfg.encoder, rgbd_icp=True))
     pipe = P.Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics))
     gt: dict[int, np.ndarray | None] = {}
@@ -105,6 +117,17 @@ def main(argv: list[str] | None = None) -> int:
             d["err_cm"], d["err_deg"] = _motion(invert_T(G) @ tr.T_ref_cur)
         return tr
 
+    metas: list[dict] = []
+    encode = pipe.encoder.encode
+
+    def logged_encode(frames, **kw):
+        enc = encode(frames, **kw)
+        m = enc.meta
+        metas.append({"use_icp": m.get("use_icp"), "ratio": m.get("pnp_icp_rotation_ratio"),
+                      "joint": len(m.get("joint_posed", [])), "n": len(frames) - 1})  # fmt: skip
+        return enc
+
+    pipe.encoder.encode = logged_encode
     pipe.tracker.track = logged_track
     P.relative_rgbd = logged_rgbd  # the pipeline calls it by this module-level name
     n = min(a.max_frames, len(ds))
@@ -125,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
           f"keyframes {rms(e[kf]):.3f} ({int(kf.sum())}), others {rms(e[~kf]):.3f}")  # fmt: skip
     print("events:", dict(Counter(ev.kind for ev in pipe.events)), "ICP-tracked:", pipe.n_icp_tracked)
     print("registration:", reg, "loops:", pipe.loop_stage.metrics())
+    print("submaps (use_icp, PnP/ICP rotation ratio, joint-posed / keyframes):",
+          [(d["use_icp"], round(d["ratio"], 3), f'{d["joint"]}/{d["n"]}') for d in metas])  # fmt: skip
     for ev in pipe.events:
         print("  ", ev.frame_index, ev.kind, ev.detail[:80])
     for d in rec:

@@ -43,8 +43,14 @@ from gsslam.frontend.encoder import (
     robust_depth_stats,
 )
 from gsslam.frontend.flow import DISFlow, FlowEstimator, compose_flows, forward_backward_mask, textured_mask
+from gsslam.frontend.mono_init import (
+    choose_hypothesis,
+    local_poses,
+    rotation_deg,
+    score_tracks,
+    two_view_hypotheses,
+)
 from gsslam.frontend.pose_estimation import pnp, random_flow_matches
-from gsslam.frontend.mono_init import choose_hypothesis, local_poses, rotation_deg, score_tracks, two_view_hypotheses
 from gsslam.frontend.two_view import triangulate_rays, two_view_pose
 from gsslam.geometry import backproject, depth_to_points, invert_T
 from gsslam.types import Frame, SubmapEncoding
@@ -143,23 +149,29 @@ class MonoEncoder:
             hyps = two_view_hypotheses(K, uv0_tv, uvr_tv, tv, cfg, self.rng)
         all_tracks = None
         if cfg.mono_ba_tracks == "all":
-            uv_all, uv_ref, _ = random_flow_matches(fw[ref], valid[ref], None, cfg.max_points_per_frame, self.rng)
+            uv_all, uv_ref, _ = random_flow_matches(
+                fw[ref], valid[ref], None, cfg.max_points_per_frame, self.rng
+            )
             all_tracks = (uv_all, uv_ref)
         prior = None
         if cfg.mono_shared_depth_sigma > 0:
             prior = lambda uv: self._shared_depth_prior(sd, sc, uv, intr)  # noqa: E731
         sols = [
-            local_poses(K, h, ref, fw, valid, intr.width, intr.height, cfg, sd, all_tracks, prior) for h in hyps
+            local_poses(K, h, ref, fw, valid, intr.width, intr.height, cfg, sd, all_tracks, prior)
+            for h in hyps
         ]
         best = 0
         if len(sols) > 1:
             tracks = score_tracks(fw, valid, ref, intr.width, intr.height, cfg.max_points_per_frame, self.rng)
             best, costs = choose_hypothesis(K, sols, tracks, cfg.ransac_threshold_px)
             meta["hypotheses"] = [
-                {"rotation_deg": rotation_deg(h.T_b_a, hyps[0].T_b_a), "essential_inliers": h.essential_inliers,
-                 "cost": c}
+                {
+                    "rotation_deg": rotation_deg(h.T_b_a, hyps[0].T_b_a),
+                    "essential_inliers": h.essential_inliers,
+                    "cost": c,
+                }
                 for h, c in zip(hyps, costs)
-            ]  # fmt: skip
+            ]
             meta["hypothesis"] = best
         tv, sol = hyps[best], sols[best]
         for i in sol.info["pnp_failed"]:

@@ -191,7 +191,10 @@ def track_cost(
         q = A + rho[pj, None] * t
         z = np.where(q[:, 2] > 1e-9, q[:, 2], 1e-9)
         r = np.stack([fx * q[:, 0] / z + cx, fy * q[:, 1] / z + cy], 1) - target
-        J = np.stack([fx * (t[:, 0] * z - q[:, 0] * t[:, 2]), fy * (t[:, 1] * z - q[:, 1] * t[:, 2])], 1) / z[:, None] ** 2
+        J = (
+            np.stack([fx * (t[:, 0] * z - q[:, 0] * t[:, 2]), fy * (t[:, 1] * z - q[:, 1] * t[:, 2])], 1)
+            / z[:, None] ** 2
+        )
         r[q[:, 2] <= 1e-9] = 1e3  # behind the camera: a large residual
         return r, J
 

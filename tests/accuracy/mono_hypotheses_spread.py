@@ -40,14 +40,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kw", action="append", default=[], help="dataset kwarg key=value (value YAML)")
     ap.add_argument("--first", action="append", type=int, default=[], help="first frame of a submap")
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--config", action="append", default=[], help="NAME=key=value,key=value ('NAME=': defaults)")
+    ap.add_argument(
+        "--config", action="append", default=[], help="NAME=key=value,key=value ('NAME=': defaults)"
+    )
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     kw = {"base": "tum", "pattern": "fbf"} if a.dataset == "playback" else {}
     for s in a.kw:
         k, v = s.split("=", 1)
         kw[k] = yaml.safe_load(v)
-    ds = open_dataset(a.dataset, a.seq, **kw) if a.dataset == "playback" else open_dataset(a.dataset, a.seq, with_depth=False, **kw)
+    ds = (
+        open_dataset(a.dataset, a.seq, **kw)
+        if a.dataset == "playback"
+        else open_dataset(a.dataset, a.seq, with_depth=False, **kw)
+    )
     ts = np.asarray(ds.timestamps())
     kf_ts = np.loadtxt(f"{a.run_dir}/keyframes.tum", comments="#", usecols=0, ndmin=1)
     kf = [int(np.argmin(np.abs(ts - t))) for t in kf_ts]
@@ -82,14 +88,16 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{g[0]:4d}-{g[-1]:<4d} {name:>10s}  "
                 + " ".join(f"{x:5.2f}" for x in errs)
-                + f"  mean {np.nanmean(errs):.2f} range {np.nanmax(errs) - np.nanmin(errs):.2f}  chosen {' '.join(chosen)}",
+                + f"  mean {np.nanmean(errs):.2f} range {np.nanmax(errs) - np.nanmin(errs):.2f}"
+                + f"  chosen {' '.join(chosen)}",
                 flush=True,
             )
     base = times[configs[0][0]]
     for name, _ in configs:
         e = np.asarray(summary[name])
         print(
-            f"{name:>10s}: mean {np.nanmean(e):.3f} deg, mean per-submap range {np.nanmean(np.nanmax(e, 1) - np.nanmin(e, 1)):.3f}, "
+            f"{name:>10s}: mean {np.nanmean(e):.3f} deg, "
+            f"mean per-submap range {np.nanmean(np.nanmax(e, 1) - np.nanmin(e, 1)):.3f}, "
             f"worst {np.nanmax(e):.2f}; encoder time x{times[name] / base:.2f}"
         )
     return 0

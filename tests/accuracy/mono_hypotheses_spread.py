@@ -49,11 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     for s in a.kw:
         k, v = s.split("=", 1)
         kw[k] = yaml.safe_load(v)
-    ds = (
-        open_dataset(a.dataset, a.seq, **kw)
-        if a.dataset == "playback"
-        else open_dataset(a.dataset, a.seq, with_depth=False, **kw)
-    )
+    if a.dataset == "tum":
+        kw["with_depth"] = False  # colour only (other loaders have no depth or take no such argument)
+    ds = open_dataset(a.dataset, a.seq, **kw)
     ts = np.asarray(ds.timestamps())
     kf_ts = np.loadtxt(f"{a.run_dir}/keyframes.tum", comments="#", usecols=0, ndmin=1)
     kf = [int(np.argmin(np.abs(ts - t))) for t in kf_ts]

@@ -72,6 +72,7 @@ class EncoderConfig:
     mono_shared_depth_min_confidence: float = 0.5  # mono: no prior where that confidence is below this
     mono_essential_method: str = "ransac"  # mono: robust estimator of the two-view essential matrix (ransac | magsac)
     mono_ba_tracks: str = "two_view"  # mono: local BA tracks: the essential inliers (two_view) or all sampled (all)
+    mono_two_view_hypotheses: int = 1  # mono: two-view poses (RANSAC samples) carried through PnP + BA; the best over all tracks is kept
 
 
 @dataclass(frozen=True)

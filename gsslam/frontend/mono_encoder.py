@@ -43,8 +43,15 @@ from gsslam.frontend.encoder import (
     robust_depth_stats,
 )
 from gsslam.frontend.flow import DISFlow, FlowEstimator, compose_flows, forward_backward_mask, textured_mask
+from gsslam.frontend.mono_init import (
+    choose_hypothesis,
+    local_poses,
+    rotation_deg,
+    score_tracks,
+    two_view_hypotheses,
+)
 from gsslam.frontend.pose_estimation import pnp, random_flow_matches
-from gsslam.frontend.two_view import bundle_adjust, triangulate_rays, two_view_pose
+from gsslam.frontend.two_view import triangulate_rays, two_view_pose
 from gsslam.geometry import backproject, depth_to_points, invert_T
 from gsslam.types import Frame, SubmapEncoding
 
@@ -116,11 +123,10 @@ class MonoEncoder:
         # two-view initialisation against the farthest usable frame
         tv, ref = None, None
         for r in range(n - 1, 0, -1):
-            uv0, uvr, _ = random_flow_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
+            uv0_tv, uvr_tv, _ = random_flow_matches(fw[r], valid[r], None, cfg.max_points_per_frame, self.rng)
             res = two_view_pose(
-                K, uv0, uvr, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg,
-                method=cfg.mono_essential_method,
-            )  # fmt: skip
+                K, uv0_tv, uvr_tv, cfg.ransac_threshold_px, cfg.min_inliers, cfg.min_parallax_deg
+            )  # the reference frame by RANSAC, whatever the estimator (mono_init.two_view_hypotheses)
             meta.setdefault("two_view", []).append(
                 {
                     "frame": r,
@@ -136,75 +142,52 @@ class MonoEncoder:
         if tv is None:
             return self._degenerate(frames, imgs, fw, bw, valid, sd, intr, meta)
 
-        # one scale for the submap
-        X0, uv0 = tv.X_a, tv.uv_a
-        s = 1.0 / float(np.median(X0[:, 2]))
-        if sd is not None:
-            ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
-            zs = sd[ui[:, 1], ui[:, 0]]
-            ok = np.isfinite(zs)
-            if ok.sum() >= cfg.min_inliers:
-                s = float(np.median(zs[ok] / X0[ok, 2]))
-                meta["scale_source"] = "shared_depth"
-        X0 = X0 * s
-        T_i_0 = np.tile(np.eye(4), (n, 1, 1))
-        T_i_0[ref] = tv.T_b_a
-        T_i_0[ref, :3, 3] *= s
-
-        # PnP for the other frames: frame-0 track points into frame i via the chained flow
-        for i in range(1, n):
-            if i == ref:
-                continue
-            fl = fw[i].reshape(-1, 2)
-            ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
-            lin = ui[:, 1] * intr.width + ui[:, 0]
-            ok = valid[i].reshape(-1)[lin]
-            res = pnp(X0[ok], uv0[ok] + fl[lin[ok]], K, 2.0 * cfg.ransac_threshold_px, cfg.min_inliers)
-            if res.T_tgt_src is None:
-                meta["pnp_failed"].append(i)
-                T_i_0[i] = T_i_0[i - 1]
-                log.warning(
-                    "mono encoder: PnP failed for keyframe %d (%d inliers); copying the previous pose",
-                    frames[i].index,
-                    res.inliers,
-                )
-            else:
-                T_i_0[i] = res.T_tgt_src
-
+        # the local poses: each two-view hypothesis through scale, PnP and the BA; with several,
+        # the one whose BA poses explain all tracks best (gsslam/frontend/mono_init.py)
+        hyps = [tv]
+        if cfg.mono_two_view_hypotheses > 1 or cfg.mono_essential_method != "ransac":
+            hyps = two_view_hypotheses(K, uv0_tv, uvr_tv, tv, cfg, self.rng)
+        all_tracks = None
         if cfg.mono_ba_tracks == "all":
-            # the BA's tracks: every sampled frame-0 track seen in the reference frame, triangulated
-            # with the two-view pose, not only the essential matrix's inliers (that selection follows
-            # the RANSAC sample: one rotation error kept the tracks that agree with it; docs/frontend.md)
             uv_all, uv_ref, _ = random_flow_matches(
                 fw[ref], valid[ref], None, cfg.max_points_per_frame, self.rng
             )
-            X_all, _, _ = triangulate_rays(K, uv_all, uv_ref, T_i_0[ref])
-            keep = np.isfinite(X_all).all(1) & (X_all[:, 2] > 0)
-            if keep.sum() >= cfg.min_inliers:
-                uv0, X0 = uv_all[keep], X_all[keep]
-                meta["ba_tracks"] = int(keep.sum())
-        meta["T_i_0_pnp"] = T_i_0.copy()  # [n, 4, 4] before the BA (tests/accuracy/mono_rotation_probe.py)
-        # bundle adjustment over the frame-0 tracks seen in every frame where they are valid
-        obs = np.full((n, len(uv0), 2), np.nan)
-        ui = np.clip(np.round(uv0).astype(int), 0, [intr.width - 1, intr.height - 1])
-        lin = ui[:, 1] * intr.width + ui[:, 0]
-        for i in range(1, n):
-            ok = valid[i].reshape(-1)[lin]
-            obs[i, ok] = uv0[ok] + fw[i].reshape(-1, 2)[lin[ok]]
-        med_before = float(np.median(X0[:, 2]))
-        rho_prior, sigma = None, 0.0
+            all_tracks = (uv_all, uv_ref)
+        prior = None
         if cfg.mono_shared_depth_sigma > 0:
-            rho_prior, sigma = self._shared_depth_prior(sd, sc, uv0, intr)
-        T_i_0, rho = bundle_adjust(
-            K, T_i_0, uv0, 1.0 / X0[:, 2], obs, cfg.ransac_threshold_px,
-            rho_prior=rho_prior, prior_sigma_rel=sigma,
-        )  # fmt: skip
+            prior = lambda uv: self._shared_depth_prior(sd, sc, uv, intr)  # noqa: E731
+        sols = [
+            local_poses(K, h, ref, fw, valid, intr.width, intr.height, cfg, sd, all_tracks, prior)
+            for h in hyps
+        ]
+        best = 0
+        if len(sols) > 1:
+            tracks = score_tracks(fw, valid, ref, intr.width, intr.height, cfg.max_points_per_frame, self.rng)
+            best, costs = choose_hypothesis(K, sols, tracks, cfg.ransac_threshold_px)
+            meta["hypotheses"] = [
+                {
+                    "rotation_deg": rotation_deg(h.T_b_a, hyps[0].T_b_a),
+                    "essential_inliers": h.essential_inliers,
+                    "cost": c,
+                }
+                for h, c in zip(hyps, costs)
+            ]
+            meta["hypothesis"] = best
+        tv, sol = hyps[best], sols[best]
+        for i in sol.info["pnp_failed"]:
+            log.warning(
+                "mono encoder: PnP failed for keyframe %d (%d inliers); copying the previous pose",
+                frames[i].index,
+                sol.info["pnp_inliers"][i],
+            )
+        meta.update({k: v for k, v in sol.info.items() if k != "pnp_inliers"})
+        meta["T_i_0_pnp"] = sol.T_i_0_pnp  # [n, 4, 4] before the BA (tests/accuracy/mono_rotation_probe.py)
+        T_i_0, rho, s = sol.T_i_0.copy(), sol.rho, sol.scale
         meta["T_i_0_ba"] = T_i_0.copy()
-        if rho_prior is None:
-            g = float(med_before / np.median(1.0 / rho))  # hold the scale chosen above
+        if "shared_depth_prior" not in sol.info:
+            g = float(sol.median_depth_before / np.median(1.0 / rho))  # hold the scale chosen above
         else:
             g = 1.0  # the shared depth held it, track by track
-            meta["shared_depth_prior"] = int(np.isfinite(rho_prior).sum())
         T_i_0[:, :3, 3] *= g
         T_local = np.stack([invert_T(T) for T in T_i_0])
 
@@ -240,7 +223,7 @@ class MonoEncoder:
             scale=s * g,
             parallax_deg=tv.median_parallax_deg,
             depth_stats=[robust_depth_stats(p[..., 2]) for p in points],
-            support_points=len(X0),
+            support_points=len(sol.uv0),
         )
         return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
 

@@ -1,9 +1,10 @@
 """Replay a run kept by ``exp.py`` with its RGB-D point loops re-weighted (docs/results.md, "Loops that
 correct, session 9"): keyframe ATE (Sim(3), cm) before / after the final batch.
 
-Variants: ``asis``; ``off`` (no loop weight); ``gtloop`` (each loop's points moved to the relative pose of
-its two submaps at their best rigid fit to ground truth, ``loop_audit.gt_local_best``); ``agg=S`` (per-point sigma = S metres x sqrt(N): S is the std of the loop's aggregate
-misalignment, as the adjacency factors do); ``minn=N`` (loops of fewer than N point pairs dropped); ``icpw=F`` (the
+Variants: ``asis``; ``off`` (no loop weight); ``gtloop`` (each loop's points moved to the relative pose
+of its two submaps at their best rigid fit to ground truth, ``loop_audit.gt_local_best``); ``agg=S``
+(per-point sigma = S metres x sqrt(N): S is the std of the loop's aggregate misalignment, as the
+adjacency factors do); ``minn=N`` (loops of fewer than N point pairs dropped); ``icpw=F`` (the
 neighbour ICP factors' information x F); ``sig=S`` (per-point sigma S metres, as ``graph.loop_sigma_m``).
 Usage: ``PYTHONPATH=. python tests/accuracy/loop_replay/agg_rexp.py KEPT.pkl asis off agg=0.005 ...``.
 """
@@ -47,7 +48,8 @@ def gt_all_pairs(st, min_overlap, index):
     be.update()
     a = ate(st, kf_poses(be.values(), st))
     be.refine_batch()
-    return f"{added} ground-truth loops added: kf ATE Sim(3) before batch {a:.3f} after batch {ate(st, kf_poses(be.values(), st)):.3f} cm"
+    b = ate(st, kf_poses(be.values(), st))
+    return f"{added} ground-truth loops added: kf ATE Sim(3) before batch {a:.3f} after batch {b:.3f} cm"
 
 
 def main():

@@ -1,9 +1,10 @@
 """Measuring tool (docs/results.md, "Loops that correct, session 9"), not a test: audit the loops of a run
 kept by ``exp.py`` against ground truth.
 
-(a) each loop's relative pose T_i_m against the ground-truth one (rotation / translation error), next to
-    the error of the graph's estimate between the same submaps before the loop entered (the drift the loop
-    should remove), and the loop's weight: the aggregate std of its N point residuals (sigma / sqrt(N));
+(a) each loop's relative pose T_i_m against the ground-truth one (the two submaps at their best rigid
+    poses; rotation / translation error), next to the error of the graph's estimate between the same
+    submaps at the end of the run (every loop in, before the final batch), and the loop's weight: the
+    aggregate std of its N point residuals (sigma / sqrt(N));
 (b) recall: submap pairs whose keyframes see the same surface under ground truth (frustum overlap of
     submap i's keyframes at their median depth in submap m's keyframes) against the loops found;
 (c) per-submap keyframe error (SE(3)-aligned to ground truth) along the sequence, before / after the batch.
@@ -109,7 +110,8 @@ def main():
     st = pickle.load(open(a.pkl, "rb"))
     print("## (a) loops against ground truth (reference: each submap at its best rigid pose)")
     rows = loops_table(st)
-    print("i m n | loop err mm deg | estimate before (i,m) err mm deg | pts rms GT / fit mm | agg sigma mm")
+    print("i m n | loop err mm deg | graph (i,m) at the end, before the batch: err mm deg | pts rms GT / fit mm"
+          " | agg sigma mm")
     for r in rows:
         print(f"{r['i']:3d} {r['m']:3d} {r['n']:4d} | {r['dt_mm']:6.1f} {r['dr_deg']:5.2f} | {r['est_dt_mm']:6.1f} "
               f"{r['est_dr_deg']:5.2f} | {r['rms_gt_mm']:6.1f} {r['rms_fit_mm']:6.1f} | {r['agg_sigma_mm']:.2f}")  # fmt: skip

@@ -5,7 +5,7 @@ Variants: ``asis``; ``off`` (no loop weight); ``gtloop`` (each loop's points mov
 of its two submaps at their best rigid fit to ground truth, ``loop_audit.gt_local_best``); ``agg=S``
 (per-point sigma = S metres x sqrt(N): S is the std of the loop's aggregate misalignment, as the
 adjacency factors do); ``minn=N`` (loops of fewer than N point pairs dropped); ``icpw=F`` (the
-neighbour ICP factors' information x F); ``sig=S`` (per-point sigma S metres, as ``graph.loop_sigma_m``).
+neighbour ICP factors' information x F); ``icpfloor=T,R`` (their covariance + T^2 m^2 / (R deg)^2); ``sig=S`` (per-point sigma S metres, as ``graph.loop_sigma_m``).
 Usage: ``PYTHONPATH=. python tests/accuracy/loop_replay/agg_rexp.py KEPT.pkl asis off agg=0.005 ...``.
 """
 import pickle
@@ -87,6 +87,16 @@ def main():
                 k, a, kw = sp
                 return (k, (a[0], a[1], a[2], a[3] * f, *a[4:]), kw)
             kw = dict(other_map=icp_scaled)
+        elif name.startswith("icpfloor="):  # neighbour ICP covariance + diag(r^2 (rad), t^2 (m)): "icpfloor=T_M,R_DEG"
+            t_m, r_deg = (float(x) for x in name[9:].split(","))
+
+            def icp_floor(sp, t_m=t_m, r=np.radians(r_deg)):
+                if sp[0] != "relative_pose":
+                    return sp
+                k, a, kw = sp
+                cov = np.linalg.inv(a[3]) + np.diag([r * r] * 3 + [t_m * t_m] * 3)
+                return (k, (a[0], a[1], a[2], np.linalg.inv(cov), *a[4:]), kw)
+            kw = dict(other_map=icp_floor)
         elif name.startswith("minn="):  # loops with fewer than this many point pairs get no weight
             t = int(name[5:])
             kw = dict(loop_map=lambda sp, t=t: None if len(sp[1][2]) < t else sp)

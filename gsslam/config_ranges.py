@@ -211,6 +211,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "loop.icp_huber": _ge(0),
     "loop.icp_max_shift_m": POS,
     "loop.icp_neighbours": _ge(0),
+    "loop.icp_neighbour_floor_m": NONNEG,
+    "loop.icp_neighbour_floor_deg": NONNEG,
     "pipeline.track_points": _ge(8),
     "pipeline.min_photo_consistency": UNIT,
     "pipeline.min_pnp_inliers": _ge(4),

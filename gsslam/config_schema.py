@@ -228,6 +228,8 @@ class LoopConfig:
     icp_huber: float = 3.0  # RGB-D ICP loops: Huber threshold of the relative-pose factor (whitened units)
     icp_max_shift_m: float = 0.05  # RGB-D ICP loops: refused when ICP moves the loop's pose farther than this from RANSAC's
     icp_neighbours: int = 3  # RGB-D: ICP relative-pose factors from each new submap to its N predecessors (dense depth alignment next to the flow factors; with loop.enabled on or off; loop/icp_loop.py)
+    icp_neighbour_floor_m: float = 0.0  # RGB-D neighbour ICP factors: covariance + this^2 on each translation axis (the encoders' local poses carry the pair to the submap frames; 0: off; session 9)
+    icp_neighbour_floor_deg: float = 0.0  # ... and + this^2 on each rotation axis (deg)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from gsslam.loop.icp_loop import (
     closest_views,
     left_to_right_information,
     neighbour_icp,
+    with_covariance_floor,
     refine_loop_icp,
 )
 from gsslam.loop.types import LoopConstraint
@@ -184,6 +185,38 @@ def test_neighbour_icp_aligns_a_submap_to_its_predecessors():
         v, u = icp.views
         assert encs[2].frame_indices[v] != encs[j].frame_indices[u]
     assert neighbour_icp(2, encs, poses, dataclasses.replace(cfg, icp_neighbours=1))[0][0] == 1
+
+
+def test_covariance_floor_caps_the_information_of_every_axis():
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    info = A @ A.T * 1e6 + np.eye(6) * 1e4  # an ICP-like normal matrix, sigmas ~1 mm / 0.06 deg
+    assert with_covariance_floor(info, 0.0, 0.0) is info
+    out = with_covariance_floor(info, np.radians(1.0), 0.01)
+    cov, cov0 = np.linalg.inv(out), np.linalg.inv(info)
+    floor = np.array([np.radians(1.0) ** 2] * 3 + [1e-4] * 3)
+    assert np.allclose(np.diag(cov), np.diag(cov0) + floor)  # every axis at least the floor
+    assert np.allclose(cov - np.diag(floor), cov0)  # the ICP's correlations are kept
+    assert np.all(np.linalg.eigvalsh(out) > 0)
+
+
+def test_neighbour_icp_carries_the_configured_floor():
+    """With loop.icp_neighbour_floor_m / _deg the neighbour factors are no more certain than the floor;
+    the measured pose is unchanged."""
+    ds = SyntheticDataset(n_frames=12, width=160, height=120, trajectory="orbit", seed=0)
+    encs = [_encoding(ds, idx) for idx in ((0, 1, 2), (2, 3, 4))]
+    poses = {k: ds[e.frame_indices[0]].T_world_cam_gt for k, e in enumerate(encs)}
+    cfg = dataclasses.replace(LoopConfig(), icp_neighbours=1)
+    (j0, plain), = neighbour_icp(1, encs, poses, cfg)
+    (j1, floored), = neighbour_icp(
+        1, encs, poses, dataclasses.replace(cfg, icp_neighbour_floor_m=0.01, icp_neighbour_floor_deg=1.0)
+    )
+    assert j0 == j1 == 0 and np.allclose(plain.T_i_m, floored.T_i_m)
+    sig_plain = np.sqrt(np.diag(np.linalg.inv(plain.information)))
+    sig = np.sqrt(np.diag(np.linalg.inv(floored.information)))
+    floor = np.array([np.radians(1.0)] * 3 + [0.01] * 3)
+    assert np.allclose(sig**2, sig_plain**2 + floor**2)  # here 1-10 mm alone -> 1.0-1.4 cm
+    assert np.all(sig >= floor)
 
 
 def test_loop_stage_adds_icp_neighbours_with_loops_off(revisit_rgbd):

@@ -16,6 +16,8 @@ SEQ = {
     "teddy200_fbf": ("playback", D, FBF),
     "teddy200_fbf_7scenes": ("playback", D, dict(FBF, misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth"))),
     "teddy200_fbf_misreg": ("playback", D, dict(FBF, misregister=dict(baseline_m=0.025, focal_scale=1.114))),
+    "teddy200_s2_blur": ("playback", D, dict(base="tum", pattern="fbfbf", stride=2,
+                         degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))),  # MAX_FRAMES 300
     "synth_loop800": ("synthetic", None, dict(n_frames=800, width=320, height=240, trajectory="loop", seed=5)),
 }
 def open_seq(name, mode, out):

@@ -25,6 +25,14 @@ SEQ = {
             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0,
                  misregister=dict(baseline_m=0.025, focal_scale=1.114))),
     "teddy200": ("tum", "../shared/data/rgbd_dataset_freiburg3_teddy", {}),
+    # the tracking suite's 7-Scenes proxies (session 9): the rows above handed out with depth intrinsics
+    "fbf_7scenes": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+            dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0,
+                 misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth"))),
+    "s2blur_7scenes": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+               dict(base="tum", pattern="fbfbf", stride=2,
+                    degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150),
+                    misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth"))),
     # the tracking suite's teddy200_s2_blur row (run it with --max-frames 300)
     "s2blur": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
                dict(base="tum", pattern="fbfbf", stride=2,
@@ -54,11 +62,24 @@ def main():
         kw.setdefault("with_depth", False)
     ds = open_dataset(dsname, path, **kw)
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={'true' if a.loops=='on' else 'false'}", *a.set], mode=a.mode)
-    pipe = Pipeline(cfg, ds.intrinsics)
+    reg = None
+    if a.mode == "rgbd" and cfg.encoder.colour_focal_auto:  # as the runner does (run/sequence.py, session 5)
+        from dataclasses import replace
+        from gsslam.frontend.depth_registration import register_frame, registration_correction
+        from gsslam.frontend.flow import make_flow_estimator
+        nf = min(len(ds), cfg.encoder.colour_focal_frames, a.max_frames or len(ds))
+        reg, _ = registration_correction([ds[i] for i in range(nf)], make_flow_estimator(cfg.flow),
+                                         min_dev=cfg.encoder.colour_focal_min_dev,
+                                         min_baseline_m=cfg.encoder.colour_focal_min_baseline_m)
+        if reg.is_identity():
+            reg = None
+        else:
+            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))
+    pipe = Pipeline(cfg, ds.intrinsics if reg is None else reg.colour_intrinsics(ds.intrinsics))
     n = len(ds) if a.max_frames is None else min(len(ds), a.max_frames)
     t0 = time.time()
     for i in range(n):
-        pipe.process(ds[i])
+        pipe.process(ds[i] if reg is None else register_frame(ds[i], reg))
     pipe.close_chain()
     gt = ds.ground_truth()
     ts = pipe.timestamps

@@ -1,6 +1,6 @@
 """What the map's registrations do to the graph: each one against the ground truth (session 9).
 
-    PYTHONPATH=. python tests/accuracy/map_feedback_probe.py ROW MODE OUT [key=value ...]
+    PYTHONPATH=. python tests/accuracy/map_feedback_probe.py ROW MODE OUT [frames=N] [key=value ...]
 
 Runs a row of ``gsslam/run/suites/tracking.yaml`` in process with the defaults (map and loops on; the
 map's final pass off: it is map-only, the trajectory does not depend on it) plus the overrides, and
@@ -27,7 +27,9 @@ import gsslam.slam.map_stage as MS
 from gsslam.config import load_config
 from gsslam.eval.align import align_positions
 from gsslam.geometry import invert_T, so3_log, split_sim3
-from gsslam.io.trajectory import read_tum
+from gsslam.datasets.base import open_dataset
+from gsslam.io.trajectory import read_tum, write_tum
+from gsslam.run.run_metrics import evaluate_run
 from gsslam.run.sequence import run_sequence
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,6 +55,9 @@ def _rigid(T: np.ndarray) -> np.ndarray:
 def main(name: str, mode: str, out: str, *overrides: str) -> None:
     logging.basicConfig(level=logging.WARNING)
     row = _row(name, mode)
+    frames = row.get("frames")
+    if overrides and overrides[0].startswith("frames="):  # a shorter prefix of the row
+        frames, overrides = int(overrides[0].split("=")[1]), overrides[1:]
     cfg = load_config(None, ["mapper.final_iterations_per_keyframe=0", *overrides], mode=mode)
     recs: list[dict] = []
     orig = MS.MapStage._register
@@ -78,10 +83,14 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     MS.MapStage._register = recorded
     kw = dict(row.get("kwargs") or {})
     res = run_sequence(
-        DATA / row["path"], row["dataset"], cfg, out, max_frames=row.get("frames"), progress=False,
+        DATA / row["path"], row["dataset"], cfg, out, max_frames=frames, progress=False,
         overwrite=True, **kw,
     )  # fmt: skip
     MS.MapStage._register = orig
+    Path(out + ".records.json").write_text(json.dumps(recs))  # before anything else can fail
+    gt_kw = dict(kw, with_depth=False) if mode == "mono" and row["dataset"] == "tum" else kw
+    write_tum(open_dataset(row["dataset"], DATA / row["path"], **gt_kw).ground_truth(), Path(out) / "groundtruth.tum")
+    print(json.dumps({k: evaluate_run(Path(out)).get(k) for k in ("ate_m", "ate_kf_m", "sim3_scale", "rpe_t_m", "rpe_r_deg")}))
     est, gt = read_tum(Path(out) / "trajectory.tum"), read_tum(Path(out) / "groundtruth.tum")
     g = {round(t, 6): p for t, p in zip(gt.timestamps, gt.poses)}
     pairs = [(p, g[round(t, 6)]) for t, p in zip(est.timestamps, est.poses) if round(t, 6) in g]

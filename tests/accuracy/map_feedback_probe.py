@@ -91,16 +91,21 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     gt_kw = dict(kw, with_depth=False) if mode == "mono" and row["dataset"] == "tum" else kw
     write_tum(open_dataset(row["dataset"], DATA / row["path"], **gt_kw).ground_truth(), Path(out) / "groundtruth.tum")
     print(json.dumps({k: evaluate_run(Path(out)).get(k) for k in ("ate_m", "ate_kf_m", "sim3_scale", "rpe_t_m", "rpe_r_deg")}))
+    print(f"{name} {mode} {' '.join(overrides)}: ATE {100 * (res.metrics['ate'] or {}).get('rmse_m', float('nan')):.3f} cm, "
+          f"kf {100 * (res.metrics['ate_keyframes'] or {}).get('rmse_m', float('nan')):.3f}; "
+          f"registrations {sum(r['sent'] for r in recs)} sent of {len(recs)}")  # fmt: skip
+    analyse(out, mode, recs, res.metrics)
+
+
+def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
+    """Each sent registration and the graph's pose against the ground truth, in its frame."""
     est, gt = read_tum(Path(out) / "trajectory.tum"), read_tum(Path(out) / "groundtruth.tum")
     g = {round(t, 6): p for t, p in zip(gt.timestamps, gt.poses)}
     pairs = [(p, g[round(t, 6)]) for t, p in zip(est.timestamps, est.poses) if round(t, 6) in g]
     A = align_positions(np.array([b[:3, 3] for _, b in pairs]), np.array([a[:3, 3] for a, _ in pairs]),
                         "sim3" if mode == "mono" else "se3")  # fmt: skip
-    S = A.matrix()
+    S = A.matrix
     s = float(np.cbrt(np.linalg.det(S[:3, :3])))
-    print(f"{name} {mode} {' '.join(overrides)}: ATE {100 * (res.metrics['ate'] or {}).get('rmse_m', float('nan')):.3f} cm, "
-          f"kf {100 * (res.metrics['ate_keyframes'] or {}).get('rmse_m', float('nan')):.3f}; "
-          f"registrations {sum(r['sent'] for r in recs)} sent of {len(recs)}")  # fmt: skip
     summary = []
     for d in recs:
         if not d["sent"] or "T_gt" not in d:
@@ -130,9 +135,13 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
         print(f"registrations closer to the ground truth than the graph's pose: {better} of {len(summary)}; "
               f"median graph {np.median([x['graph_cm'] for x in summary]):.2f} cm, "
               f"registered {np.median([x['reg_cm'] for x in summary]):.2f} cm")  # fmt: skip
-    Path(out + ".json").write_text(json.dumps(dict(metrics={k: res.metrics.get(k) for k in ("ate", "ate_keyframes")},
+    Path(out + ".json").write_text(json.dumps(dict(metrics={k: metrics.get(k) for k in ("ate", "ate_keyframes")},
                                                    scale=s, registrations=summary, records=recs)))  # fmt: skip
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:])
+    if sys.argv[1] == "analyse":  # again from OUT.records.json and the run folder: analyse OUT MODE
+        o = sys.argv[2]
+        analyse(o, sys.argv[3], json.loads(Path(o + ".records.json").read_text()), json.loads((Path(o) / "metrics.json").read_text()))
+    else:
+        main(*sys.argv[1:])

@@ -146,7 +146,11 @@ def test_registration_feedback_adds_factors_that_move_the_estimate(bundled_tum, 
     # off by default for RGB-D (mapper.registration_feedback_rgbd); on, 36 frames give fewer than
     # feedback_min_age=16 keyframes: nothing converged, none sent
     assert m_off["mapper"]["registration_factors"] == 0
-    extra = ["mapper.registration_feedback=true", "mapper.registration_feedback_rgbd=true", "mapper.feedback_min_age=0"]
+    extra = [
+        "mapper.registration_feedback=true",
+        "mapper.registration_feedback_rgbd=true",
+        "mapper.feedback_min_age=0",
+    ]
     m = _run(bundled_tum, tmp_path, extra)
     mp = m["mapper"]
     assert mp["registration_factors"] >= 1  # measured 1 at 80x60 on 36 frames (most gated: coverage)
@@ -186,7 +190,8 @@ def test_rgbd_trajectory_does_not_depend_on_the_map_at_the_defaults(bundled_tum,
     depth feedback and the mapper's pose refinement are off, the map draws no random numbers the
     frontend uses), so the `tracking` suite's map-off numbers are the trajectory of a run with the map.
     Measured on the hidden room's proxy (teddy200_s2_blur_7scenes, 300 frames, loops on): trajectory.tum
-    byte-identical with the map on and off (docs/results.md, "The map's effect on the trajectory, session 9")."""
+    byte-identical with the map on and off (docs/results.md, "The map's effect on the trajectory,
+    session 9")."""
     out_on, _ = mapped_run
     m = _run(bundled_tum, tmp_path, ["mapper.enabled=false"])
     assert m["mapper"] is None

@@ -25,9 +25,9 @@ import yaml
 
 import gsslam.slam.map_stage as MS
 from gsslam.config import load_config
+from gsslam.datasets.base import open_dataset
 from gsslam.eval.align import align_positions
 from gsslam.geometry import invert_T, so3_log, split_sim3
-from gsslam.datasets.base import open_dataset
 from gsslam.io.trajectory import read_tum, write_tum
 from gsslam.run.run_metrics import evaluate_run
 from gsslam.run.sequence import run_sequence
@@ -89,10 +89,21 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     MS.MapStage._register = orig
     Path(out + ".records.json").write_text(json.dumps(recs))  # before anything else can fail
     gt_kw = dict(kw, with_depth=False) if mode == "mono" and row["dataset"] == "tum" else kw
-    write_tum(open_dataset(row["dataset"], DATA / row["path"], **gt_kw).ground_truth(), Path(out) / "groundtruth.tum")
-    print(json.dumps({k: evaluate_run(Path(out)).get(k) for k in ("ate_m", "ate_kf_m", "sim3_scale", "rpe_t_m", "rpe_r_deg")}))
-    print(f"{name} {mode} {' '.join(overrides)}: ATE {100 * (res.metrics['ate'] or {}).get('rmse_m', float('nan')):.3f} cm, "
-          f"kf {100 * (res.metrics['ate_keyframes'] or {}).get('rmse_m', float('nan')):.3f}; "
+    write_tum(
+        open_dataset(row["dataset"], DATA / row["path"], **gt_kw).ground_truth(),
+        Path(out) / "groundtruth.tum",
+    )
+    print(
+        json.dumps(
+            {
+                k: evaluate_run(Path(out)).get(k)
+                for k in ("ate_m", "ate_kf_m", "sim3_scale", "rpe_t_m", "rpe_r_deg")
+            }
+        )
+    )
+    ate = 100 * (res.metrics["ate"] or {}).get("rmse_m", float("nan"))
+    ate_kf = 100 * (res.metrics["ate_keyframes"] or {}).get("rmse_m", float("nan"))
+    print(f"{name} {mode} {' '.join(overrides)}: ATE {ate:.3f} cm, kf {ate_kf:.3f}; "
           f"registrations {sum(r['sent'] for r in recs)} sent of {len(recs)}")  # fmt: skip
     analyse(out, mode, recs, res.metrics)
 
@@ -112,7 +123,7 @@ def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
             continue
         G, R, Tgt = np.array(d["T_graph"]), np.array(d["T_reg"]), np.array(d["T_gt"])
 
-        def err(T):  # -> (cm, deg) of the pose against the ground truth, in the ground truth's frame
+        def err(T, Tgt=Tgt):  # -> (cm, deg) of the pose against the ground truth, in its frame
             p = S[:3, :3] @ T[:3, 3] + S[:3, 3]
             Rw = S[:3, :3] / s @ T[:3, :3]
             deg = float(np.degrees(np.linalg.norm(so3_log(Tgt[:3, :3].T @ Rw))))
@@ -135,13 +146,20 @@ def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
         print(f"registrations closer to the ground truth than the graph's pose: {better} of {len(summary)}; "
               f"median graph {np.median([x['graph_cm'] for x in summary]):.2f} cm, "
               f"registered {np.median([x['reg_cm'] for x in summary]):.2f} cm")  # fmt: skip
-    Path(out + ".json").write_text(json.dumps(dict(metrics={k: metrics.get(k) for k in ("ate", "ate_keyframes")},
-                                                   scale=s, registrations=summary, records=recs)))  # fmt: skip
+    keep = {k: metrics.get(k) for k in ("ate", "ate_keyframes")}
+    Path(out + ".json").write_text(
+        json.dumps(dict(metrics=keep, scale=s, registrations=summary, records=recs))
+    )
 
 
 if __name__ == "__main__":
     if sys.argv[1] == "analyse":  # again from OUT.records.json and the run folder: analyse OUT MODE
         o = sys.argv[2]
-        analyse(o, sys.argv[3], json.loads(Path(o + ".records.json").read_text()), json.loads((Path(o) / "metrics.json").read_text()))
+        analyse(
+            o,
+            sys.argv[3],
+            json.loads(Path(o + ".records.json").read_text()),
+            json.loads((Path(o) / "metrics.json").read_text()),
+        )
     else:
         main(*sys.argv[1:])

@@ -146,11 +146,7 @@ def test_registration_feedback_adds_factors_that_move_the_estimate(bundled_tum, 
     # off by default for RGB-D (mapper.registration_feedback_rgbd); on, 36 frames give fewer than
     # feedback_min_age=16 keyframes: nothing converged, none sent
     assert m_off["mapper"]["registration_factors"] == 0
-    extra = [
-        "mapper.registration_feedback=true",
-        "mapper.registration_feedback_rgbd=true",
-        "mapper.feedback_min_age=0",
-    ]
+    extra = ["mapper.registration_feedback=true", "mapper.registration_feedback_rgbd=true", "mapper.feedback_min_age=0"]
     m = _run(bundled_tum, tmp_path, extra)
     mp = m["mapper"]
     assert mp["registration_factors"] >= 1  # measured 1 at 80x60 on 36 frames (most gated: coverage)

@@ -1,0 +1,165 @@
+"""What the map's registrations do to the graph: each one against the ground truth (session 9).
+
+    PYTHONPATH=. python tests/accuracy/map_feedback_probe.py ROW MODE OUT [frames=N] [key=value ...]
+
+Runs a row of ``gsslam/run/suites/tracking.yaml`` in process with the defaults (map and loops on; the
+map's final pass off: it is map-only, the trajectory does not depend on it) plus the overrides, and
+records every registration the map stage makes (:meth:`gsslam.slam.map_stage.MapStage._register`):
+the graph's pose of the keyframe at that moment, the registered pose, its information, coverage,
+converged share and whether it was gated. After the run both poses are brought into the ground
+truth's frame by the alignment of the final trajectory (Sim(3) in mono, SE(3) in RGB-D) and compared
+with the keyframe's ground truth: did the registration move the keyframe towards it or away? Prints
+ATE and one JSON line per registration; writes ``OUT.json``. Not a test: a measuring tool
+(docs/results.md, "The map's effect on the trajectory, session 9").
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import gsslam.slam.map_stage as MS
+from gsslam.config import load_config
+from gsslam.datasets.base import open_dataset
+from gsslam.eval.align import align_positions
+from gsslam.geometry import invert_T, so3_log, split_sim3
+from gsslam.io.trajectory import read_tum, write_tum
+from gsslam.run.run_metrics import evaluate_run
+from gsslam.run.sequence import run_sequence
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / ".." / "shared" / "data"
+
+
+def _row(name: str, mode: str) -> dict:
+    suite = yaml.safe_load((ROOT / "gsslam" / "run" / "suites" / "tracking.yaml").read_text())
+    for row in suite["sequences"]:
+        modes = row["mode"] if isinstance(row["mode"], list) else [row["mode"]]
+        if row["name"] == name and mode in modes:
+            return row
+    raise SystemExit(f"no row {name!r} ({mode}) in the tracking suite")
+
+
+def _rigid(T: np.ndarray) -> np.ndarray:
+    R, t, _ = split_sim3(np.asarray(T, dtype=np.float64))
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, t
+    return out
+
+
+def main(name: str, mode: str, out: str, *overrides: str) -> None:
+    logging.basicConfig(level=logging.WARNING)
+    row = _row(name, mode)
+    frames = row.get("frames")
+    if overrides and overrides[0].startswith("frames="):  # a shorter prefix of the row
+        frames, overrides = int(overrides[0].split("=")[1]), overrides[1:]
+    cfg = load_config(None, ["mapper.final_iterations_per_keyframe=0", *overrides], mode=mode)
+    recs: list[dict] = []
+    orig = MS.MapStage._register
+
+    def recorded(self, chains, cid, sid, enc, by_index, new_keyframes):
+        res = orig(self, chains, cid, sid, enc, by_index, new_keyframes)
+        sent = {int(reg.index): reg for _, reg in res}
+        for idx in new_keyframes:
+            pos = list(enc.frame_indices).index(idx)
+            T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
+            f = by_index[idx]
+            d = dict(index=int(idx), ts=float(f.timestamp), T_graph=_rigid(T).tolist(), sent=idx in sent)
+            d["scale"] = float(split_sim3(T)[2])
+            if f.T_world_cam_gt is not None:
+                d["T_gt"] = np.asarray(f.T_world_cam_gt).tolist()
+            if idx in sent:
+                r = sent[idx]
+                d.update(T_reg=r.T_world_cam.tolist(), info=r.information.tolist(), coverage=r.coverage)
+                d.update(residual=r.residual, min_information=r.min_information, converged=r.converged)
+            recs.append(d)
+        return res
+
+    MS.MapStage._register = recorded
+    kw = dict(row.get("kwargs") or {})
+    res = run_sequence(
+        DATA / row["path"], row["dataset"], cfg, out, max_frames=frames, progress=False,
+        overwrite=True, **kw,
+    )  # fmt: skip
+    MS.MapStage._register = orig
+    Path(out + ".records.json").write_text(json.dumps(recs))  # before anything else can fail
+    gt_kw = dict(kw, with_depth=False) if mode == "mono" and row["dataset"] == "tum" else kw
+    write_tum(
+        open_dataset(row["dataset"], DATA / row["path"], **gt_kw).ground_truth(),
+        Path(out) / "groundtruth.tum",
+    )
+    print(
+        json.dumps(
+            {
+                k: evaluate_run(Path(out)).get(k)
+                for k in ("ate_m", "ate_kf_m", "sim3_scale", "rpe_t_m", "rpe_r_deg")
+            }
+        )
+    )
+    ate = 100 * (res.metrics["ate"] or {}).get("rmse_m", float("nan"))
+    ate_kf = 100 * (res.metrics["ate_keyframes"] or {}).get("rmse_m", float("nan"))
+    print(f"{name} {mode} {' '.join(overrides)}: ATE {ate:.3f} cm, kf {ate_kf:.3f}; "
+          f"registrations {sum(r['sent'] for r in recs)} sent of {len(recs)}")  # fmt: skip
+    analyse(out, mode, recs, res.metrics)
+
+
+def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
+    """Each sent registration and the graph's pose against the ground truth, in its frame."""
+    est, gt = read_tum(Path(out) / "trajectory.tum"), read_tum(Path(out) / "groundtruth.tum")
+    g = {round(t, 6): p for t, p in zip(gt.timestamps, gt.poses)}
+    pairs = [(p, g[round(t, 6)]) for t, p in zip(est.timestamps, est.poses) if round(t, 6) in g]
+    A = align_positions(np.array([b[:3, 3] for _, b in pairs]), np.array([a[:3, 3] for a, _ in pairs]),
+                        "sim3" if mode == "mono" else "se3")  # fmt: skip
+    S = A.matrix
+    s = float(np.cbrt(np.linalg.det(S[:3, :3])))
+    summary = []
+    for d in recs:
+        if not d["sent"] or "T_gt" not in d:
+            continue
+        G, R, Tgt = np.array(d["T_graph"]), np.array(d["T_reg"]), np.array(d["T_gt"])
+
+        def err(T, Tgt=Tgt):  # -> (cm, deg) of the pose against the ground truth, in its frame
+            p = S[:3, :3] @ T[:3, 3] + S[:3, 3]
+            Rw = S[:3, :3] / s @ T[:3, :3]
+            deg = float(np.degrees(np.linalg.norm(so3_log(Tgt[:3, :3].T @ Rw))))
+            return 100 * float(np.linalg.norm(p - Tgt[:3, 3])), deg
+
+        D = invert_T(G) @ R  # the registration's step from the graph's pose (right perturbation)
+        xi = np.r_[so3_log(D[:3, :3]), D[:3, 3]]  # (phi, rho)
+        maha = float(xi @ np.array(d["info"]) @ xi)
+        eg, er = err(G), err(R)
+        line = dict(index=d["index"], graph_cm=round(eg[0], 2), reg_cm=round(er[0], 2),
+                    graph_deg=round(eg[1], 2), reg_deg=round(er[1], 2),
+                    step_cm=round(100 * s * float(np.linalg.norm(D[:3, 3])), 2),
+                    step_deg=round(float(np.degrees(np.linalg.norm(xi[:3]))), 2), maha=round(maha, 2),
+                    coverage=round(d["coverage"], 2), residual=round(d["residual"], 3),
+                    converged=round(d["converged"], 2), min_info=round(d["min_information"], 0))  # fmt: skip
+        summary.append(line)
+        print(json.dumps(line))
+    if summary:
+        better = sum(x["reg_cm"] < x["graph_cm"] for x in summary)
+        print(f"registrations closer to the ground truth than the graph's pose: {better} of {len(summary)}; "
+              f"median graph {np.median([x['graph_cm'] for x in summary]):.2f} cm, "
+              f"registered {np.median([x['reg_cm'] for x in summary]):.2f} cm")  # fmt: skip
+    keep = {k: metrics.get(k) for k in ("ate", "ate_keyframes")}
+    Path(out + ".json").write_text(
+        json.dumps(dict(metrics=keep, scale=s, registrations=summary, records=recs))
+    )
+
+
+if __name__ == "__main__":
+    if sys.argv[1] == "analyse":  # again from OUT.records.json and the run folder: analyse OUT MODE
+        o = sys.argv[2]
+        analyse(
+            o,
+            sys.argv[3],
+            json.loads(Path(o + ".records.json").read_text()),
+            json.loads((Path(o) / "metrics.json").read_text()),
+        )
+    else:
+        main(*sys.argv[1:])

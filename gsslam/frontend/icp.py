@@ -40,6 +40,7 @@ class IcpResult:
     rmse_m: float  # point-to-plane RMS of the inliers, metres
     condition: float  # smallest / largest eigenvalue of the (scaled) normal matrix
     reason: str = ""
+    matches: int = 0  # flow matches in the joint solve (``matches``), 0 without
     # [6, 6] Gauss-Newton normal matrix J^T W J of the whitened residuals at the last step (finest level),
     # over the left perturbation (translation, rotation) of T_tgt_src in the target camera; None when refused
     hessian: np.ndarray | None = None
@@ -73,30 +74,57 @@ def grid_normals(P: np.ndarray, max_jump_rel: float = 0.05) -> np.ndarray:  # [h
     return N
 
 
-def _reprojection_terms(
+def _point_jacobian(p: np.ndarray) -> np.ndarray:  # [M, 3] transformed points -> d p / d xi [M, 3, 6]
+    J = np.zeros((len(p), 3, 6))
+    J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = 1.0
+    # d (w x p) / d w = -[p]x
+    J[:, 0, 4], J[:, 0, 5] = p[:, 2], -p[:, 1]
+    J[:, 1, 3], J[:, 1, 5] = -p[:, 2], p[:, 0]
+    J[:, 2, 3], J[:, 2, 4] = p[:, 1], -p[:, 0]
+    return J
+
+
+def reprojection_residuals(
     T: np.ndarray,  # [4, 4] T_tgt_src
-    X_src: np.ndarray,  # [M, 3] source points (metres, source camera)
+    X_src: np.ndarray,  # [M, 3] points in the source camera (metres)
     uv_tgt: np.ndarray,  # [M, 2] their pixels in the target image
-    K: np.ndarray,  # [3, 3] of uv_tgt
-    sigma_px: float,
-    huber: float,
-) -> tuple[np.ndarray, np.ndarray]:  # normal matrix [6, 6], gradient [6] (left perturbation)
+    K: np.ndarray,  # [3, 3] target intrinsics
+    sigma_px: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:  # e [M, 2], de/dxi [M, 2, 6] (left perturbation)
+    """Flow term: ``e = (pi(K, T p) - uv) / sigma_px`` and its Jacobian."""
     p = X_src @ T[:3, :3].T + T[:3, 3]
     z = np.maximum(p[:, 2], 1e-6)
     fx, fy = K[0, 0], K[1, 1]
-    e = np.stack([fx * p[:, 0] / z + K[0, 2], fy * p[:, 1] / z + K[1, 2]], 1) - uv_tgt
-    e = e / sigma_px
+    e = (np.stack([fx * p[:, 0] / z + K[0, 2], fy * p[:, 1] / z + K[1, 2]], 1) - uv_tgt) / sigma_px
     Jpi = np.zeros((len(p), 2, 3))
     Jpi[:, 0, 0] = fx / z
     Jpi[:, 0, 2] = -fx * p[:, 0] / z**2
     Jpi[:, 1, 1] = fy / z
     Jpi[:, 1, 2] = -fy * p[:, 1] / z**2
-    px = np.zeros((len(p), 3, 3))  # -[p]x
-    px[:, 0, 1], px[:, 0, 2], px[:, 1, 2] = p[:, 2], -p[:, 1], p[:, 0]
-    px[:, 1, 0], px[:, 2, 0], px[:, 2, 1] = -p[:, 2], p[:, 1], -p[:, 0]
-    J = np.concatenate([Jpi, Jpi @ px], axis=2) / sigma_px  # [M, 2, 6]
-    norm = np.linalg.norm(e, axis=1)
-    w = np.minimum(1.0, huber / np.maximum(norm, 1e-12)) * (p[:, 2] > 1e-6)
+    return e, Jpi @ _point_jacobian(p) / sigma_px
+
+
+def point_to_plane_residuals(
+    T: np.ndarray,  # [4, 4] T_tgt_src
+    p_src: np.ndarray,  # [M, 3] source points (metres, source camera)
+    q: np.ndarray,  # [M, 3] their associated target points (target camera)
+    n: np.ndarray,  # [M, 3] unit normals at q
+    sigma: np.ndarray,  # [M] metres
+) -> tuple[np.ndarray, np.ndarray]:  # r [M], dr/dxi [M, 6] (left perturbation)
+    """Depth term: ``r = n . (T p - q) / sigma`` and its Jacobian."""
+    p = p_src @ T[:3, :3].T + T[:3, 3]
+    r = np.einsum("ij,ij->i", n, p - q) / sigma
+    J = np.concatenate([n, np.cross(p, n)], axis=1) / sigma[:, None]
+    return r, J
+
+
+def _huber(x: np.ndarray, k: float) -> np.ndarray:  # residual norms [M] -> IRLS weights [M]
+    return np.minimum(1.0, k / np.maximum(x, 1e-12))
+
+
+def _flow_terms(T, X, uv, K, sigma_px, huber, weight) -> tuple[np.ndarray, np.ndarray]:  # H [6, 6], g [6]
+    e, J = reprojection_residuals(T, X, uv, K, sigma_px)
+    w = weight * _huber(np.linalg.norm(e, axis=1), huber) * ((X @ T[2, :3] + T[2, 3]) > 1e-6)
     Jw = J * w[:, None, None]
     return np.einsum("mki,mkj->ij", Jw, J), np.einsum("mki,mk->i", Jw, e)
 
@@ -116,12 +144,24 @@ def icp_point_to_plane(
     min_condition: float = 1e-3,
     max_step_m: float = 0.1,
     max_step_deg: float = 8.0,
-    matches: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    matches: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,  # X_src [M, 3], uv_tgt [M, 2], K
     match_sigma_px: float = 1.0,
+    match_weight: float = 1.0,
+    tol: float = 1e-5,
 ) -> IcpResult:
-    """Point-to-plane ICP ``T_tgt_src`` (module docstring)."""
+    """Point-to-plane ICP ``T_tgt_src`` (module docstring); with ``matches`` the joint flow + depth pose.
+
+    ``matches``: 3D-2D flow matches whose reprojection residuals (``match_sigma_px``, Huber, scaled by
+    ``match_weight``) are stacked with the depth residuals (:mod:`gsslam.frontend.joint_pose` selects
+    them). ``min_condition`` 0: no conditioning check. ``tol``: a level stops when both the translation
+    (m) and the rotation (rad) step are below it."""
     T = np.asarray(T_init, dtype=np.float64).copy()
     inliers, rmse, cond = 0, float("nan"), 0.0
+    n_matches = 0 if matches is None else len(matches[0])
+
+    def _refused(n: int, reason: str) -> IcpResult:  # the start, not ok
+        return IcpResult(np.asarray(T_init, float), False, n, rmse, cond, reason, n_matches)
+
     H = None
     for stride in strides:
         Ps, _ = strided_points(depth_src, intr, stride)
@@ -148,40 +188,39 @@ def icp_point_to_plane(
             close = np.linalg.norm(pp - q, axis=1) < max_dist
             idx, q, n, pp = idx[close], q[close], n[close], pp[close]
             if len(idx) < (min_points if stride == strides[-1] else min_points // 4):
-                return IcpResult(np.asarray(T_init, float), False, len(idx), rmse, cond, "few_points")
+                return _refused(len(idx), "few_points")
             sig = sigma0 + sigma2 * q[:, 2] ** 2
-            r = np.einsum("ij,ij->i", n, pp - q) / sig
-            wts = np.minimum(1.0, huber / np.maximum(np.abs(r), 1e-12))
-            J = np.concatenate([n, np.cross(pp, n)], axis=1) / sig[:, None]  # [M, 6]
-            Jw = J * wts[:, None]
+            r, J = point_to_plane_residuals(T, src[idx], q, n, sig)  # [M], [M, 6]
+            Jw = J * _huber(np.abs(r), huber)[:, None]
             H = Jw.T @ J
             g = Jw.T @ r
-            if matches is not None:
-                Hm, gm = _reprojection_terms(T, *matches, match_sigma_px, huber)
+            if matches is not None and len(matches[0]) and match_weight > 0:
+                Hm, gm = _flow_terms(T, *matches, match_sigma_px, huber, match_weight)
                 H, g = H + Hm, g + gm
             # conditioning with rotation scaled by the median depth (metres vs radians)
             zm = float(np.median(q[:, 2]))
             D = np.diag([1, 1, 1, 1 / zm, 1 / zm, 1 / zm])
             ev = np.linalg.eigvalsh(D @ H @ D)
             cond = float(ev[0] / max(ev[-1], 1e-300))
-            if cond < min_condition:
-                return IcpResult(np.asarray(T_init, float), False, len(idx), rmse, cond, "ill_conditioned")
+            if min_condition > 0 and cond < min_condition:
+                return _refused(len(idx), "ill_conditioned")
             try:
                 xi = -np.linalg.solve(H, g)
             except np.linalg.LinAlgError:
-                return IcpResult(np.asarray(T_init, float), False, len(idx), rmse, cond, "singular")
+                return _refused(len(idx), "singular")
             dT = np.eye(4)
             dT[:3, :3] = so3_exp(xi[3:])
             dT[:3, 3] = xi[:3]
             T = dT @ T
             inliers = len(idx)
-            rmse = float(np.sqrt(np.mean((r * sig)[np.abs(r) < huber] ** 2))) if np.any(np.abs(r) < huber) else rmse
-            if np.linalg.norm(xi[:3]) < 1e-5 and np.linalg.norm(xi[3:]) < 1e-5:
+            inl = np.abs(r) < huber
+            rmse = float(np.sqrt(np.mean((r * sig)[inl] ** 2))) if inl.any() else rmse
+            if np.linalg.norm(xi[:3]) < tol and np.linalg.norm(xi[3:]) < tol:
                 break
     E = np.linalg.inv(np.asarray(T_init, float)) @ T
     if np.linalg.norm(E[:3, 3]) > max_step_m or np.degrees(np.linalg.norm(so3_log(E[:3, :3]))) > max_step_deg:
-        return IcpResult(np.asarray(T_init, float), False, inliers, rmse, cond, "moved_far")
-    return IcpResult(T, True, inliers, rmse, cond, hessian=H)
+        return _refused(inliers, "moved_far")
+    return IcpResult(T, True, inliers, rmse, cond, matches=n_matches, hessian=H)
 
 
 def refine_relative_pose(

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane, refine_relative_pose
+from gsslam.frontend.joint_pose import joint_pose
 from gsslam.frontend.tracking import FrameMatches, solve_relative_pose
 from gsslam.geometry import interpolate_pose, invert_T
 from gsslam.types import CameraIntrinsics
@@ -37,12 +38,14 @@ class TrackParams:
     refine_icp: bool = False  # refine every accepted PnP pose by ICP as well (pipeline.track_icp)
     icp_fallback: bool = False  # a refused PnP: ICP from the relaxed PnP pose / the prediction
     icp_min_fitness: float = 0.4  # ICP matched points / valid source points at the finest level
+    joint: bool = False  # an accepted PnP pose re-solved from flow and depth jointly (track_joint_pose)
 
 
 @dataclass(frozen=True)
 class RgbdTrack:
     T_ref_cur: np.ndarray | None  # [4, 4]; None: tracking failed
-    source: str  # "pnp" | "pnp+icp" (pipeline.track_icp) | "icp" (after a refused PnP) | "" (failed)
+    # "pnp" | "pnp+joint" | "pnp+icp" (pipeline.track_icp) | "icp" (after a refused PnP) | "" (failed)
+    source: str
     pnp_inliers: int
     pnp_matches: int
     icp_fitness: float = float("nan")  # of the ICP that gave the pose (NaN: none)
@@ -71,6 +74,27 @@ def _icp(depth_ref, depth_cur, intr, T_ref_cur) -> tuple[np.ndarray | None, floa
     return invert_T(res.T_tgt_src), icp_fitness(depth_cur, res.inliers, strides[-1])
 
 
+def joint_strides(width: int) -> tuple[int, int]:
+    """Strides of the joint flow + depth pose of a tracked frame: half :func:`track_strides` (80x60 then
+    160x120 points at 640 px, the keyframe pairs' point count)."""
+    s = max(1, round(width * TRACK_STRIDES[-1] / 640 / 2))
+    return (2 * s, s)
+
+
+def _joint(matches, z_ref, depth_ref, depth_cur, intr, T_ref_cur, threshold_px) -> np.ndarray | None:
+    """Flow (the matches within ``threshold_px`` of the PnP pose) and depth jointly from ``T_ref_cur``:
+    the refined ``T_ref_cur``, or None when the solve refuses (:mod:`gsslam.frontend.joint_pose`)."""
+    ok = np.isfinite(z_ref) & (z_ref > 0)
+    K = intr.K
+    uv, z = matches.uv_ref[ok], z_ref[ok]
+    X = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * z, (uv[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    res = joint_pose(
+        X, matches.uv_cur[ok], depth_ref, depth_cur, intr, invert_T(T_ref_cur),
+        strides=joint_strides(depth_cur.shape[1]), inlier_px=threshold_px,
+    )  # fmt: skip
+    return invert_T(res.T_tgt_src) if res.ok else None
+
+
 def track_relative_pose(
     matches: FrameMatches,
     z_ref: np.ndarray,  # [N] keyframe depth at matches.uv_ref (NaN unknown)
@@ -80,13 +104,18 @@ def track_relative_pose(
     params: TrackParams,
     T_pred: np.ndarray | None = None,  # [4, 4] predicted T_ref_cur (constant velocity), optional
 ) -> RgbdTrack:
-    """``T_ref_cur`` of a frame: PnP, else (``icp_fallback``) ICP from the best start (module docstring)."""
+    """``T_ref_cur`` of a frame: PnP (then flow + depth jointly with ``joint``, where that solve accepts),
+    else (``icp_fallback``) ICP from the best start (module docstring)."""
     K = intr.K
     n = int(np.count_nonzero(np.isfinite(z_ref) & (z_ref > 0)))
     T, inl = solve_relative_pose(
         matches, z_ref, K, params.min_inliers, params.min_inlier_ratio, params.threshold_px
     )
     if T is not None:
+        if params.joint and depth_cur is not None:
+            T_joint = _joint(matches, z_ref, depth_ref, depth_cur, intr, T, params.threshold_px)
+            if T_joint is not None:
+                return RgbdTrack(T_joint, "pnp+joint", inl, n)
         if params.refine_icp and depth_cur is not None:  # pipeline.track_icp: ICP at TRACK_STRIDES, as before
             return RgbdTrack(refine_relative_pose(depth_ref, depth_cur, intr, T), "pnp+icp", inl, n)
         return RgbdTrack(T, "pnp", inl, n)

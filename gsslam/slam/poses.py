@@ -38,13 +38,19 @@ def relative_rgbd(p, frame, matches: FrameMatches, depth_ref: np.ndarray, fallba
     from gsslam.frontend.rgbd_tracking import TrackParams, track_relative_pose
 
     pc = p.cfg.pipeline
+    use_icp = getattr(p.encoder, "use_icp", False)
+    check = getattr(p.encoder, "check", None)  # the encoder's ColourDepthCheck: ICP where colour disagrees
+    # joint flow + depth poses where the encoder takes them (its rule, encoder.rgbd_joint_with_icp)
+    mismatch = check is not None and check.mismatch
+    joint_ok = not use_icp or (p.cfg.encoder.rgbd_joint_with_icp and not mismatch)
     params = TrackParams(
         pc.min_pnp_inliers,
         pc.min_pnp_inlier_ratio,
         pc.pnp_threshold_px,
-        refine_icp=pc.track_icp or getattr(p.encoder, "use_icp", False),
+        refine_icp=pc.track_icp or use_icp,
         icp_fallback=pc.track_icp_fallback and fallback,
         icp_min_fitness=pc.track_icp_min_fitness,
+        joint=pc.track_joint_pose and joint_ok,
     )
     T_pred = None
     if params.icp_fallback:  # the constant-velocity start is read only by the ICP fallback

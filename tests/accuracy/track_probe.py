@@ -4,7 +4,8 @@
         [--loops off] [--set key=value ...] [--row teddy200_fbf_7scenes] [--dump run.npz]
 
 Runs the pipeline in process (map off, RGB-D) on teddy played ``stride`` times faster with motion blur and
-exposure swings (the ``teddy200_s2_blur`` row; ``--row``: any playback row of the tracking suite) and prints ATE (all frames / keyframes / the others), the
+exposure swings (the ``teddy200_s2_blur`` row; ``--row``: any playback or TUM row of the tracking suite)
+and prints ATE (all frames / keyframes / the others), the
 events, then one JSON line per tracking attempt: frame ``f`` and keyframe ``ref``, the tracker's
 photo-consistency ``pc`` and median flow ``med`` (px), the exposure gain ratio keyframe -> frame ``gain``,
 the RGB-D step's ``source`` (pnp / icp / "" failed), PnP inliers / matches, ICP fitness, the ground-truth
@@ -42,14 +43,14 @@ def _motion(T: np.ndarray) -> tuple[float, float]:  # -> (cm, deg)
     return round(100 * float(np.linalg.norm(T[:3, 3])), 2), round(deg, 2)
 
 
-def _row(name: str) -> tuple[dict, int | None]:  # -> (playback kwargs, frames)
+def _row(name: str) -> tuple[str, dict, int | None]:  # -> (dataset, kwargs, frames)
     import yaml
 
     suite = Path(__file__).resolve().parents[2] / "gsslam" / "run" / "suites" / "tracking.yaml"
     for row in yaml.safe_load(suite.read_text())["sequences"]:
-        if row["name"] == name and row.get("dataset") == "playback":
-            return dict(row["kwargs"]), row.get("frames")
-    raise SystemExit(f"no playback row {name!r} in {suite}")
+        if row["name"] == name and row.get("dataset") in ("playback", "tum"):
+            return row["dataset"], dict(row.get("kwargs", {})), row.get("frames")
+    raise SystemExit(f"no playback or tum row {name!r} in {suite}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -61,15 +62,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loops", default="off")
     ap.add_argument("--set", action="append", default=[], dest="overrides")
     ap.add_argument("--max-frames", type=int, default=300)
-    ap.add_argument("--row", default=None, help="a playback row of gsslam/run/suites/tracking.yaml (its kwargs)")
+    ap.add_argument("--row", default=None, help="a playback or TUM row of gsslam/run/suites/tracking.yaml")
     ap.add_argument("--dump", default=None, help="write per-frame poses, keyframes and attempts (.npz)")
     ap.add_argument("--reg", default=None, help="K,B,GIVEN: apply this registration, no estimate")
     ap.add_argument("--no-force-icp", action="store_true", help="keep encoder.rgbd_icp as configured")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if a.row is not None:
-        kw, frames = _row(a.row)
-        ds = open_dataset("playback", a.seq, **kw)
+        kind, kw, frames = _row(a.row)
+        ds = open_dataset(kind, a.seq, **kw)
         a.max_frames = frames or len(ds)
     else:
         degrade = None if a.no_degrade else {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
@@ -100,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         ref = pipe.tracker.ref
         d = {"f": frame.index, "ref": ref.index, "ok": st.ok, "reason": st.reason}
         d.update(pc=round(st.photo_consistency, 3), med=round(st.median_flow_px, 1))
-        if ds.degradation is not None:
+        if getattr(ds, "degradation", None) is not None:
             d["gain"] = round(ds.degradation.gain(frame.index) / ds.degradation.gain(ref.index), 3)
         if gt.get(ref.index) is not None and gt.get(frame.index) is not None:
             d["gt_cm"], d["gt_deg"] = _motion(invert_T(gt[ref.index]) @ gt[frame.index])
@@ -156,8 +157,14 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(d))
     if a.dump:
         np.savez(
-            a.dump, idx=np.array(idx), est=np.array([est[i] for i in idx]), gt=np.array([gt[i] for i in idx]),
-            err=e, keyframes=np.array(sorted(pipe.keyframes)), records=json.dumps(rec),
+            a.dump,
+            idx=np.array(idx),
+            est=np.array([est[i] for i in idx]),
+            gt=np.array([gt[i] for i in idx]),
+            err=e,
+            keyframes=np.array(sorted(pipe.keyframes)),
+            records=json.dumps(rec),
+            ref=np.array([pipe.relative[i][0] if i in pipe.relative else -1 for i in idx]),
             events=json.dumps([(ev.frame_index, ev.kind) for ev in pipe.events]),
         )
     return 0

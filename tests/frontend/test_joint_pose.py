@@ -1,12 +1,13 @@
-"""Joint flow + depth pose (frontend/joint_pose.py): Jacobians, exact and noisy synthetic pairs, a wall."""
+"""Joint flow + depth pose (frontend/joint_pose.py on icp.py's solver): Jacobians, exact and noisy synthetic
+pairs, a wall."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gsslam.frontend.icp import icp_point_to_plane
-from gsslam.frontend.joint_pose import joint_pose, point_to_plane_residuals, reprojection_residuals
+from gsslam.frontend.icp import icp_point_to_plane, point_to_plane_residuals, reprojection_residuals
+from gsslam.frontend.joint_pose import joint_pose
 from gsslam.frontend.pose_estimation import pnp
 from gsslam.geometry import backproject, invert_T, make_T, project, so3_exp, so3_log, transform_points
 from helpers.plane_scene import INTR, PlaneScene
@@ -91,7 +92,7 @@ def test_exact_cues_give_the_exact_pose_from_a_wrong_start():
     assert res.ok, res.reason
     dt, dr = _err(res.T_tgt_src, G)
     assert dt < 0.05 and dr < 0.002  # measured 0.0 mm, 0.0 deg
-    assert res.flow_matches > 1000 and res.depth_points > 10000
+    assert res.matches > 1000 and res.inliers > 10000
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -250,7 +250,7 @@ class PipelineConfig:
     track_icp_fallback: bool = True  # RGB-D: a frame whose PnP is refused even after a promoted keyframe (track_icp_promote_first) is tracked by ICP on depth (from the ungated PnP pose or a constant-velocity prediction) instead of failing (session 8: on; docs/results.md)
     track_icp_promote_first: bool = True  # RGB-D ICP fallback only where promoting the last tracked frame to a keyframe and retrying PnP cannot help (the retry, or no frame to promote): the keyframe set stays that of PnP tracking (false: ICP at once, session 7: +15 % on teddy200_fbf_7scenes loops on, docs/results.md)
     track_icp_min_fitness: float = 0.4  # RGB-D ICP fallback: ICP matched points / the frame's valid depth points (finest level) below this: failed (teddy, right poses: 0.49-0.63)
-    track_joint_pose: bool = False  # RGB-D: each tracked frame's PnP pose re-solved from flow (PnP inliers) and depth (point-to-plane against its keyframe) jointly, as the keyframe poses (frontend/rgbd_tracking.py; docs/results.md, session 9)
+    track_joint_pose: bool = True  # RGB-D: each tracked frame's PnP pose re-solved from flow (PnP inliers) and depth (point-to-plane against its keyframe) jointly, as the keyframe poses (frontend/rgbd_tracking.py; docs/results.md, session 9)
 
 
 @dataclass(frozen=True)

@@ -105,6 +105,9 @@ def test_rgbd_chains_are_rejoined_near_the_gap_free_run(gap_copy, tmp_path):
     assert rejoined == pytest.approx(m["ate"]["rmse_m"], rel=1e-6)
     # measured 0.57 cm vs 0.51 cm (1.12x) until session 7; session 8's joint flow + depth keyframe poses
     # took the gap-free run to 0.36 cm and the rejoined one to 0.56 cm (1.53x): the relocalisation
-    # across the gap, not the chains' odometry, now sets the rejoined error (docs/results.md, session 8)
-    assert rejoined <= 0.0062, (rejoined, base)
-    assert rejoined <= 1.6 * base, (rejoined, base)
+    # across the gap, not the chains' odometry, now sets the rejoined error (docs/results.md, session 8).
+    # Session 9's joint flow + depth poses of the frames between keyframes (pipeline.track_joint_pose):
+    # gap-free 0.25 cm, rejoined 0.50 cm (2.04x): both lower, the gap-free run more (the frames' own
+    # error); what is left of the rejoined run's is the relocalisation across the gap
+    assert rejoined <= 0.0055, (rejoined, base)
+    assert rejoined <= 2.2 * base, (rejoined, base)

@@ -15,29 +15,23 @@ import numpy as np
 import pytest
 
 from gsslam.config import load_config
-from gsslam.datasets.synthetic.dataset import SyntheticDataset
-from gsslam.frontend.flow import forward_backward_mask, make_flow_estimator, textured_mask
+from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.mono_encoder import MonoEncoder
 from gsslam.frontend.mono_init import rotation_deg, track_cost, track_observations, two_view_hypotheses
 from gsslam.frontend.pose_estimation import random_flow_matches
 from gsslam.frontend.two_view import two_view_pose
 from gsslam.geometry import invert_T, so3_exp, so3_log
+from helpers.orbit_pair import orbit_dataset, orbit_flow_pair
 
 
 @pytest.fixture(scope="module")
 def orbit():
-    return SyntheticDataset(n_frames=60, trajectory="orbit", seed=5)
+    return orbit_dataset()
 
 
 @pytest.fixture(scope="module")
 def pair(orbit):
-    cfg = load_config(None, [], mode="mono")
-    flow = make_flow_estimator(cfg.flow)
-    a, b = orbit[0], orbit[8]
-    fw, bw = flow(a.image, b.image), flow(b.image, a.image)
-    ok = forward_backward_mask(fw, bw, 1.0, relative=0.01) & textured_mask(a.image, 0.01)
-    T_b_a = invert_T(b.T_world_cam_gt) @ a.T_world_cam_gt
-    return a.intrinsics.K, fw, ok, T_b_a
+    return orbit_flow_pair(orbit, 0, 8)
 
 
 def test_track_cost_is_lowest_at_the_true_rotation():

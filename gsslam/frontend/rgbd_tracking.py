@@ -24,7 +24,7 @@ import numpy as np
 from gsslam.frontend.icp import TRACK_STRIDES, icp_point_to_plane, refine_relative_pose
 from gsslam.frontend.joint_pose import joint_pose
 from gsslam.frontend.tracking import FrameMatches, solve_relative_pose
-from gsslam.geometry import interpolate_pose, invert_T
+from gsslam.geometry import backproject, interpolate_pose, invert_T
 from gsslam.types import CameraIntrinsics
 
 
@@ -87,7 +87,7 @@ def _joint(matches, z_ref, depth_ref, depth_cur, intr, T_ref_cur, threshold_px) 
     ok = np.isfinite(z_ref) & (z_ref > 0)
     K = intr.K
     uv, z = matches.uv_ref[ok], z_ref[ok]
-    X = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * z, (uv[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    X = backproject(K, uv, z)
     res = joint_pose(
         X, matches.uv_cur[ok], depth_ref, depth_cur, intr, invert_T(T_ref_cur),
         strides=joint_strides(depth_cur.shape[1]), inlier_px=threshold_px,

@@ -22,7 +22,7 @@ import numpy as np
 
 from gsslam.errors import GsslamError
 from gsslam.frontend.pose_estimation import pnp
-from gsslam.geometry import interpolate_pose
+from gsslam.geometry import backproject, interpolate_pose
 from gsslam.types import CameraIntrinsics, Frame
 
 log = logging.getLogger(__name__)
@@ -136,7 +136,7 @@ def solve_relative_pose(
     """
     ok = np.isfinite(depth_ref) & (depth_ref > 0)
     uv_ref, z = m.uv_ref[ok], depth_ref[ok]
-    X = np.stack([(uv_ref[:, 0] - K[0, 2]) / K[0, 0] * z, (uv_ref[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    X = backproject(K, uv_ref, z)
     res = pnp(
         X,
         m.uv_cur[ok],

@@ -174,8 +174,8 @@ def corrected_locals(st, rows, gtdir: bool, gtb: bool = False) -> list[np.ndarra
     out = []
     for L, row in zip(st["T_local_cam"], rows):
         L = L.copy()
-        if gtb:  # translations consistent with the submap's own depth: r -> sqrt(d0 dK)
-            c = np.sqrt(row["d0"] * row["dK"]) / row["r"]
+        if gtb:  # translations consistent with the submap's own depth (frame K's; frame 0's is the
+            c = row["dK"] / row["r"]  # previous submap's): r -> dK
             L[:, :3, 3] *= c if np.isfinite(c) else 1.0
         if gtdir:
             for j, Tg in enumerate(row["T_gt"], 1):
@@ -306,7 +306,7 @@ def show(a) -> None:
     rows = per_submap(st)
     print(f"{st['seq']} loops {st['loops']} {st['set']}: {len(rows)} submaps, chains {st['chains']}, "
           f"loops {st['loops_metrics'].get('accepted')}")  # fmt: skip
-    print(" sub frames      r      link    d0     dK    d0/r   dir   rot   par   g2")
+    print(" sub frames      r      link    d0     dK    dK/r   dir   rot   par   g2")
     prev = None
     links, dirs, dr = [], [], []
     for k, (fi, row) in enumerate(zip(st["frame_indices"], rows)):
@@ -314,13 +314,13 @@ def show(a) -> None:
         if prev:
             links.append(np.log(link))
         dirs.append(row["dir"])
-        dr.append(np.log(row["d0"] / row["r"]))
+        dr.append(np.log(row["dK"] / row["r"]))
         print(f" {k:3d} {fi[0]:4d}-{fi[-1]:<4d} {row['r']:7.3f} {link:6.3f} {row['d0']:6.3f} {row['dK']:6.3f} "
-              f"{row['d0'] / row['r']:6.3f} {row['dir']:5.2f} {row['rot']:5.2f} {row['par']:5.1f} {row['g2']:6.3f}")  # fmt: skip
+              f"{row['dK'] / row['r']:6.3f} {row['dir']:5.2f} {row['rot']:5.2f} {row['par']:5.1f} {row['g2']:6.3f}")  # fmt: skip
         prev = row["r"]
     L = np.array(links)[np.isfinite(links)]
     print(f"log link: mean {L.mean():+.4f} std {L.std():.4f} |.| mean {np.abs(L).mean():.4f} max {np.abs(L).max():.4f}; "
-          f"log(d0/r) std {np.nanstd(dr):.4f}; dir mean {np.nanmean(dirs):.2f} deg")  # fmt: skip
+          f"log(dK/r) std {np.nanstd(dr):.4f}; dir mean {np.nanmean(dirs):.2f} deg")  # fmt: skip
     for v in a.variants:
         if v.startswith("chain"):
             parts = v.split("+")

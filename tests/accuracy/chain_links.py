@@ -329,7 +329,15 @@ def show(a) -> None:
             parts = v.split("+")
             kn = {p.split("=")[0]: float(p.split("=")[1]) for p in parts if "=" in p}
             ate, s = replay(st, rows, "gtlink" in parts, "gtdir" in parts, loops="noloops" not in parts, knobs=kn, gtb="gtB" in parts)
-            print(f"  replay {v:16s} ATE kf {ate:6.2f} cm")
+            r = _scales(rows)
+            if "gtlink" in parts:
+                r = np.full_like(r, r[0])
+            if "gtB" in parts:
+                r = np.array([row["dK"] for row in rows])
+            w = np.log(s * r)  # the world scale of each submap's translations (x the Sim(3) alignment: const)
+            w = w[np.isfinite(w)]
+            print(f"  replay {v:16s} ATE kf {ate:6.2f} cm; world translation scale: std log {w.std():.4f}, "
+                  f"last/first {np.exp(w[-1] - w[0]):.3f}")
 
 
 def main(argv=None) -> int:

@@ -329,9 +329,7 @@ def show(a) -> None:
             parts = v.split("+")
             kn = {p.split("=")[0]: float(p.split("=")[1]) for p in parts if "=" in p}
             ate, s = replay(st, rows, "gtlink" in parts, "gtdir" in parts, loops="noloops" not in parts, knobs=kn, gtb="gtB" in parts)
-            r = _scales(rows)
-            if "gtlink" in parts:
-                r = np.full_like(r, r[0])
+            r = _scales(rows)  # the local translations' scale (gtlink changes only the graph's links)
             if "gtB" in parts:
                 r = np.array([row["dK"] for row in rows])
             w = np.log(s * r)  # the world scale of each submap's translations (x the Sim(3) alignment: const)

@@ -36,7 +36,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 OUT = os.environ.get("CHAIN_LINKS_OUT", "/tmp/chain_links")
 BLUR = {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
@@ -47,7 +46,12 @@ ROWS = {  # the tracking suite's rows (gsslam/run/suites/tracking.yaml): (datase
     "s3blur": ("playback", TEDDY, dict(base="tum", pattern="fbfbfbf", stride=3, degrade=BLUR), 300),
     "fbf": ("playback", TEDDY, FBF, None),
     "teddy200": ("tum", TEDDY, dict(with_depth=False), None),  # as the runner opens a mono TUM row
-    "synth800": ("synthetic", None, dict(n_frames=800, width=320, height=240, trajectory="loop", seed=5), None),
+    "synth800": (
+        "synthetic",
+        None,
+        dict(n_frames=800, width=320, height=240, trajectory="loop", seed=5),
+        None,
+    ),
     "kitti01": ("kitti", "../shared/data/kitti_odometry", dict(sequence="01"), None),
     "kitti06": ("kitti", "../shared/data/kitti_odometry", dict(sequence="06"), None),
 }
@@ -80,7 +84,9 @@ def run(a) -> None:
     pipe.close_chain()
     ch = pipe.chains[0]
     st = {"seq": a.seq, "loops": a.loops, "set": a.overrides, "chains": len(pipe.chains)}
-    st["replay"] = [(op[0], op[1], to_matrix(op[2])) if op[0] == "value" else op for op in ch.graph.backend.replay_log()]
+    st["replay"] = [
+        (op[0], op[1], to_matrix(op[2])) if op[0] == "value" else op for op in ch.graph.backend.replay_log()
+    ]
     pipe.finish()
     st["kf_after"] = pipe.keyframe_poses()
     st["fr_after"] = pipe.frame_poses()
@@ -92,12 +98,18 @@ def run(a) -> None:
     st["depthK"] = [e.points_cam[-1, ..., 2].astype(np.float32) for e in ch.encodings]
     st["conf0"] = [e.confidence[0].astype(np.float32) for e in ch.encodings]
     st["confK"] = [e.confidence[-1].astype(np.float32) for e in ch.encodings]
-    st["meta"] = [{k: v for k, v in e.meta.items() if isinstance(v, (int, float, str, bool))} for e in ch.encodings]
+    st["meta"] = [
+        {k: v for k, v in e.meta.items() if isinstance(v, (int, float, str, bool))} for e in ch.encodings
+    ]
     import cv2
 
     def small(fi, shape):
         d = gt_depth.get(fi)
-        return None if d is None else cv2.resize(np.asarray(d, np.float32), shape[::-1], interpolation=cv2.INTER_NEAREST)
+        return (
+            None
+            if d is None
+            else cv2.resize(np.asarray(d, np.float32), shape[::-1], interpolation=cv2.INTER_NEAREST)
+        )
 
     st["gt_depth0"] = [small(fi[0], d.shape) for fi, d in zip(st["frame_indices"], st["depth0"])]
     st["gt_depthK"] = [small(fi[-1], d.shape) for fi, d in zip(st["frame_indices"], st["depthK"])]
@@ -130,7 +142,7 @@ def per_submap(st) -> list[dict]:
         j0 = next((j for j, G in enumerate(Gs) if G is not None), None)
         num = den = 0.0
         dirs, rots, tg = [], [], []
-        for j, f in enumerate(fi[1:], 1):
+        for j in range(1, len(fi)):
             G = Gs[j]
             if G is None or j0 is None or j <= j0:
                 tg.append(None)
@@ -151,9 +163,11 @@ def per_submap(st) -> list[dict]:
             ok = np.isfinite(z) & (z > 0) & np.isfinite(g) & (g > 0)
             return float(np.exp(np.median(np.log(z[ok] / g[ok])))) if ok.sum() > 10 else float("nan")
 
+        nan = float("nan")
         rows.append(dict(
-            r=r, d0=dscale(st["depth0"][k], st["gt_depth0"][k]), dK=dscale(st["depthK"][k], st["gt_depthK"][k]),
-            dir=float(np.nanmean(dirs)) if dirs else float("nan"), rot=float(np.mean(rots)) if rots else float("nan"),
+            r=r, d0=dscale(st["depth0"][k], st["gt_depth0"][k]),
+            dK=dscale(st["depthK"][k], st["gt_depthK"][k]),
+            dir=float(np.nanmean(dirs)) if dirs else nan, rot=float(np.mean(rots)) if rots else nan,
             g2=st["meta"][k].get("dense_scale_correction", float("nan")), T_gt=tg,
             par=st["meta"][k].get("parallax_deg", float("nan")),
         ))  # fmt: skip
@@ -187,7 +201,6 @@ def corrected_locals(st, rows, gtdir: bool, gtb: bool = False) -> list[np.ndarra
 
 def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict | None = None, gtb=False):
     sys.path.insert(0, str(Path(__file__).parent / "loop_replay"))
-    import gtsam
 
     from gsslam.config import load_config
     from gsslam.factors import to_gtsam, to_matrix
@@ -244,7 +257,11 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
             if k == 0:
                 S = op[2]
             else:
-                Sp = to_matrix(be.values().atSimilarity3(submap_key(k - 1))) if be.has_value(submap_key(k - 1)) else None
+                Sp = (
+                    to_matrix(be.values().atSimilarity3(submap_key(k - 1)))
+                    if be.has_value(submap_key(k - 1))
+                    else None
+                )
                 S = op[2]
                 if Sp is not None and (gtlink or gtdir or gtb):
                     c = np.cbrt(np.linalg.det(Sp[:3, :3]))
@@ -315,27 +332,39 @@ def show(a) -> None:
             links.append(np.log(link))
         dirs.append(row["dir"])
         dr.append(np.log(row["dK"] / row["r"]))
-        print(f" {k:3d} {fi[0]:4d}-{fi[-1]:<4d} {row['r']:7.3f} {link:6.3f} {row['d0']:6.3f} {row['dK']:6.3f} "
-              f"{row['dK'] / row['r']:6.3f} {row['dir']:5.2f} {row['rot']:5.2f} {row['par']:5.1f} {row['g2']:6.3f}")  # fmt: skip
+        print(f" {k:3d} {fi[0]:4d}-{fi[-1]:<4d} {row['r']:7.3f} {link:6.3f} {row['d0']:6.3f} "
+              f"{row['dK']:6.3f} {row['dK'] / row['r']:6.3f} {row['dir']:5.2f} {row['rot']:5.2f} "
+              f"{row['par']:5.1f} {row['g2']:6.3f}")  # fmt: skip
         prev = row["r"]
     L = np.array(links)[np.isfinite(links)]
-    print(f"log link: mean {L.mean():+.4f} std {L.std():.4f} |.| mean {np.abs(L).mean():.4f} max {np.abs(L).max():.4f}; "
-          f"log(dK/r) std {np.nanstd(dr):.4f}; dir mean {np.nanmean(dirs):.2f} deg")  # fmt: skip
+    print(f"log link: mean {L.mean():+.4f} std {L.std():.4f} |.| mean {np.abs(L).mean():.4f} "
+          f"max {np.abs(L).max():.4f}; log(dK/r) std {np.nanstd(dr):.4f}; dir mean {np.nanmean(dirs):.2f} deg")  # fmt: skip
     for v in a.variants:
         if v.startswith("chain"):
             parts = v.split("+")
-            print(f"  {v:23s} ATE kf {chain(st, rows, 'gtlink' in parts, 'gtdir' in parts, 'gtB' in parts):6.2f} cm (no graph)")
+            ate = chain(st, rows, "gtlink" in parts, "gtdir" in parts, "gtB" in parts)
+            print(f"  {v:23s} ATE kf {ate:6.2f} cm (no graph)")
         else:
             parts = v.split("+")
             kn = {p.split("=")[0]: float(p.split("=")[1]) for p in parts if "=" in p}
-            ate, s = replay(st, rows, "gtlink" in parts, "gtdir" in parts, loops="noloops" not in parts, knobs=kn, gtb="gtB" in parts)
+            ate, s = replay(
+                st,
+                rows,
+                "gtlink" in parts,
+                "gtdir" in parts,
+                loops="noloops" not in parts,
+                knobs=kn,
+                gtb="gtB" in parts,
+            )
             r = _scales(rows)  # the local translations' scale (gtlink changes only the graph's links)
             if "gtB" in parts:
                 r = np.array([row["dK"] for row in rows])
             w = np.log(s * r)  # the world scale of each submap's translations (x the Sim(3) alignment: const)
             w = w[np.isfinite(w)]
-            print(f"  replay {v:16s} ATE kf {ate:6.2f} cm; world translation scale: std log {w.std():.4f}, "
-                  f"last/first {np.exp(w[-1] - w[0]):.3f}")
+            print(
+                f"  replay {v:16s} ATE kf {ate:6.2f} cm; world translation scale: std log {w.std():.4f}, "
+                f"last/first {np.exp(w[-1] - w[0]):.3f}"
+            )
 
 
 def main(argv=None) -> int:
@@ -348,7 +377,20 @@ def main(argv=None) -> int:
     r.add_argument("--tag", default="")
     s = sub.add_parser("show")
     s.add_argument("pkl")
-    s.add_argument("--variants", nargs="*", default=["asis", "gtlink", "gtdir", "gtlink+gtdir", "chain", "chain+gtlink", "chain+gtdir", "chain+gtlink+gtdir"])
+    s.add_argument(
+        "--variants",
+        nargs="*",
+        default=[
+            "asis",
+            "gtlink",
+            "gtdir",
+            "gtlink+gtdir",
+            "chain",
+            "chain+gtlink",
+            "chain+gtdir",
+            "chain+gtlink+gtdir",
+        ],
+    )
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     run(a) if a.cmd == "run" else show(a)

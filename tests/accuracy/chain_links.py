@@ -338,7 +338,8 @@ def show(a) -> None:
         prev = row["r"]
     L = np.array(links)[np.isfinite(links)]
     print(f"log link: mean {L.mean():+.4f} std {L.std():.4f} |.| mean {np.abs(L).mean():.4f} "
-          f"max {np.abs(L).max():.4f}; log(dK/r) std {np.nanstd(dr):.4f}; dir mean {np.nanmean(dirs):.2f} deg")  # fmt: skip
+          f"max {np.abs(L).max():.4f}; log(dK/r) std {np.nanstd(dr):.4f}; "
+          f"dir mean {np.nanmean(dirs):.2f} deg")  # fmt: skip
     for v in a.variants:
         if v.startswith("chain"):
             parts = v.split("+")

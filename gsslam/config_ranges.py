@@ -76,6 +76,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.mono_essential_method": ("ransac", "magsac"),
     "encoder.mono_ba_tracks": ("two_view", "all"),
     "encoder.mono_two_view_hypotheses": Range(1, 16),
+    "encoder.mono_link_min_confidence": Range(0.0, 1.0),
     "encoder.rgbd_icp_auto_min_ratio": POS,
     "encoder.rgbd_icp_auto_max_ratio": POS,
     "encoder.rgbd_joint_flow_weight": POS,

@@ -73,6 +73,8 @@ class EncoderConfig:
     mono_essential_method: str = "ransac"  # mono: robust estimator of the two-view essential matrix (ransac | magsac)
     mono_ba_tracks: str = "two_view"  # mono: local BA tracks: the essential inliers (two_view) or all sampled (all)
     mono_two_view_hypotheses: int = 1  # mono: two-view poses (RANSAC samples) carried through PnP + BA; the best over all tracks is kept
+    mono_link_weighted: bool = False  # mono: the scale link to the previous submap weighted by both depths' confidence (frontend/mono_link.py)
+    mono_link_min_confidence: float = 0.0  # mono: with mono_link_weighted, pixels whose lower confidence is below this are not used
 
 
 @dataclass(frozen=True)

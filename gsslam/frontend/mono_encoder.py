@@ -50,6 +50,7 @@ from gsslam.frontend.mono_init import (
     score_tracks,
     two_view_hypotheses,
 )
+from gsslam.frontend.mono_link import chain_link
 from gsslam.frontend.pose_estimation import pnp, random_flow_matches
 from gsslam.frontend.two_view import triangulate_rays, two_view_pose
 from gsslam.geometry import backproject, depth_to_points, invert_T
@@ -193,12 +194,11 @@ class MonoEncoder:
 
         points, conf = self._dense_depth(imgs, fw, bw, valid, T_local, intr)
         if sd is not None and not _is_constant(sd):
-            # the dense frame-0 depth against the shared depth, on every pixel both have: one robust
-            # log-ratio that puts the whole submap (poses and points) in the previous submap's units
-            z0 = points[0, ..., 2]
-            both = np.isfinite(z0) & np.isfinite(sd) & (z0 > 0)
-            if both.sum() >= cfg.min_inliers:
-                g2 = float(np.exp(np.median(np.log(sd[both]) - np.log(z0[both]))))
+            # the dense frame-0 depth against the shared depth: one robust log-ratio (on every pixel
+            # both have, or weighted by confidence) puts the whole submap in the previous one's units
+            link = chain_link(sd, points[0, ..., 2], sc, conf[0], cfg)  # gsslam/frontend/mono_link.py
+            if link is not None:
+                g2, meta["link_sigma"] = float(np.exp(link.log_scale)), link.sigma
                 points *= g2
                 T_local[:, :3, 3] *= g2
                 g *= g2

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config(None, a.overrides, mode="mono")
     enc_ = make_encoder("mono", cfg.encoder, make_flow_estimator(cfg.flow))
     K = cfg.encoder.submap_size
-    shared, idx0, prev, links = None, a.start, None, []
+    shared, shared_conf, idx0, prev, links = None, None, a.start, None, []
     for i in range(a.submaps):
         idx = [idx0 + a.gap * j for j in range(K + 1)]
         if idx[-1] >= len(ds):
@@ -64,10 +64,10 @@ def main(argv: list[str] | None = None) -> int:
         frames = [dataclasses.replace(f, depth=None) for f in frames]
         if any(f.T_world_cam_gt is None for f in frames):
             print(f"{i}: frames {idx[0]}-{idx[-1]} lack ground truth; chain restarted")
-            shared, prev = None, None
+            shared, shared_conf, prev = None, None, None
             idx0 = idx[-1]
             continue
-        enc = enc_.encode(frames, shared_depth=shared)
+        enc = enc_.encode(frames, shared_depth=shared, shared_confidence=shared_conf)
         r = local_scale(enc, frames)
         link = r / prev if prev else float("nan")
         if prev:
@@ -77,10 +77,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{i:3d} {idx[0]:4d}-{idx[-1]:<4d} {m.get('scale_source', ''):13s} "
             f"{m.get('reason', '')[:20]:20s} "
             f"g2 {m.get('dense_scale_correction', float('nan')):6.3f} enc/gt {r:7.4f} "
-            f"link {link:6.3f}",
+            f"link {link:6.3f} sigma {m.get('link_sigma', float('nan')):.4f}",
             flush=True,
         )
-        shared, prev, idx0 = enc.depths[-1], r, idx[-1]
+        shared, shared_conf, prev, idx0 = enc.depths[-1], enc.confidence[-1], r, idx[-1]
     if links:
         L = np.array(links)
         print(

@@ -79,7 +79,7 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
                 r = sent.get(idx) or held[idx]
                 d.update(T_reg=r.T_world_cam.tolist(), info=r.information.tolist(), coverage=r.coverage)
                 d.update(residual=r.residual, min_information=r.min_information, converged=r.converged)
-                d.update(outcome=getattr(r, "outcome", None), sent_scale=getattr(r, "weight", 1.0))
+                d.update(outcome=getattr(r, "at_minimum", None), sent_scale=getattr(r, "weight", 1.0))
                 # the map's keyframes where the graph had them when this one was measured (staleness)
                 d["map_at"] = {int(i): _rigid(self._keyframe_pose(chains, i)).tolist() for i in self._anchor}
             recs.append(d)

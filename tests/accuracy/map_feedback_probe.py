@@ -63,6 +63,7 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     orig = MS.MapStage._register
 
     def recorded(self, chains, cid, sid, enc, by_index, new_keyframes):
+        chains_seen[:] = [chains]
         res = orig(self, chains, cid, sid, enc, by_index, new_keyframes)
         sent = {int(reg.index): reg for _, reg in res}
         held = {int(reg.index): reg for reg in getattr(self, "withheld", [])}  # not at the map's minimum
@@ -93,6 +94,19 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
 
     final: dict[int, list] = {}
     MS.MapStage.finalize = final_poses
+    orig_send = MS.MapStage.send_registrations
+    chains_seen: list = []
+
+    def sent_at(self, chain, sid):  # did the graph move the keyframe between measuring and sending?
+        by = {d["index"]: d for d in recs if d["sent"]}
+        for _, reg in self.pending:
+            d = by.get(int(reg.index))
+            if d is not None and int(reg.index) in self._anchor:
+                T = _rigid(self._keyframe_pose(chains_seen[0], int(reg.index)))
+                d["moved_before_send_m"] = float(np.linalg.norm(T[:3, 3] - np.array(d["T_graph"])[:3, 3]))
+        return orig_send(self, chain, sid)
+
+    MS.MapStage.send_registrations = sent_at
 
     MS.MapStage._register = recorded
     kw = dict(row.get("kwargs") or {})
@@ -102,6 +116,7 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     )  # fmt: skip
     MS.MapStage._register = orig
     MS.MapStage.finalize = orig_final
+    MS.MapStage.send_registrations = orig_send
     for d in recs:
         d["final"] = final.get(d["index"])
         if "map_at" in d:  # the final poses of the map's keyframes that were in it at the time
@@ -149,7 +164,7 @@ def _staleness(d: dict, R: np.ndarray, err, s: float) -> dict:
     return out
 
 
-def _summarise(summary: list[dict]) -> None:
+def _summarise(summary: list[dict], recs: list[dict]) -> None:
     """Moved or not, towards the ground truth or away; how stale the registrations got."""
     for sent, moved in ((True, True), (True, False), (False, True), (False, False)):
         xs = [x for x in summary if x["moved"] == moved and x.get("sent", True) == sent]
@@ -158,6 +173,10 @@ def _summarise(summary: list[dict]) -> None:
             print(f"{'sent' if sent else 'withheld'}, {'moved' if moved else 'did not move'}: {len(xs)}, towards the ground truth {tw}, away "
                   f"{sum(x['reg_cm'] > x['graph_cm'] for x in xs)}; median graph {np.median([x['graph_cm'] for x in xs]):.2f} cm, "
                   f"registered {np.median([x['reg_cm'] for x in xs]):.2f} cm")  # fmt: skip
+    mb = [d["moved_before_send_m"] for d in recs if "moved_before_send_m" in d]
+    if mb:
+        print(f"graph moved the keyframe between measuring and sending: {sum(m > 1e-9 for m in mb)} of {len(mb)} "
+              f"(max {max(mb):.2e} world units)")  # fmt: skip
     st = [x for x in summary if "map_moved_cm" in x]
     if st:
         mm = np.array([x["map_moved_cm"] for x in st])
@@ -169,8 +188,12 @@ def _summarise(summary: list[dict]) -> None:
 def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
     """Each sent registration and the graph's pose against the ground truth, in its frame."""
     est, gt = read_tum(Path(out) / "trajectory.tum"), read_tum(Path(out) / "groundtruth.tum")
-    g = {round(t, 6): p for t, p in zip(gt.timestamps, gt.poses)}
-    pairs = [(p, g[round(t, 6)]) for t, p in zip(est.timestamps, est.poses) if round(t, 6) in g]
+    tg = np.asarray(gt.timestamps, dtype=np.float64)  # nearest ground-truth pose within 20 ms (TUM: mocap)
+    pairs = []
+    for t, p in zip(est.timestamps, est.poses):
+        j = int(np.argmin(np.abs(tg - t)))
+        if abs(tg[j] - t) < 0.02:
+            pairs.append((p, gt.poses[j]))
     A = align_positions(np.array([b[:3, 3] for _, b in pairs]), np.array([a[:3, 3] for a, _ in pairs]),
                         "sim3" if mode == "mono" else "se3")  # fmt: skip
     S = A.matrix
@@ -201,7 +224,7 @@ def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
         line.update(_staleness(d, R, err, s))
         summary.append(line)
         print(json.dumps(line))
-    _summarise(summary)
+    _summarise(summary, recs)
     summary_sent = [x for x in summary if x.get("sent", True)]
     if summary_sent:
         better = sum(x["reg_cm"] < x["graph_cm"] for x in summary_sent)

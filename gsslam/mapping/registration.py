@@ -191,7 +191,8 @@ def gauss_newton(state: MapState, kf: Keyframe, iterations: int) -> GaussNewtonR
     starts from); otherwise it is halved, ``registration_step_halvings`` times at most (one render
     each), and the registration stops there. ``converged``: the Gauss-Newton step at the returned pose,
     measured by the information sent with it, is within one standard deviation (squared Mahalanobis
-    distance < 1): the pose is where the map's evidence puts it, to the accuracy it claims. A pose whose
+    distance < 1): the pose is where the map's evidence puts it, to the accuracy it claims (that last
+    step is taken, so a converged registration always ends at the map's minimum). A pose whose
     next step is still larger (the cost test refused it: a non-convex or inconsistent view; or the
     iterations ran out) is not the map's minimum, and its information there describes the curvature at
     a point the map does not support (docs/mapping.md, "Registration feedback").
@@ -207,7 +208,11 @@ def gauss_newton(state: MapState, kf: Keyframe, iterations: int) -> GaussNewtonR
         H, g = _normal_equations(terms)
         step = np.linalg.solve(H + 1e-6 * np.trace(H) / 6 * np.eye(6), -g)
         maha = scale * float(step @ H @ step)
-        if steps == iterations or maha < 1.0:
+        if maha < 1.0:  # the last Gauss-Newton step, within the noise: taken without a cost test
+            delta = delta + torch.as_tensor(step, dtype=delta.dtype, device=delta.device)
+            moved = True
+            break
+        if steps == iterations:
             break
         sigmas = [t[3] for t in terms]
         here = _robust_cost(terms, sigmas)

@@ -13,7 +13,9 @@ of renders, Huber-weighted), ``sigma`` each term's robust residual spread at the
 (``registration_information_scale``) the discount for neighbouring pixels' correlated errors and for
 the map having been fitted to nearby views. A registration is returned only where the render explains
 the image (alpha coverage, photometric residual) and the information is well conditioned; a flat,
-textureless render gives none.
+textureless render gives none. Its information is sent whole only where the Gauss-Newton converged (its
+last step within that information's 1-sigma, :func:`gauss_newton`); elsewhere it is scaled by
+``registration_unconverged_weight`` (0: not sent).
 
 Only *converged* Gaussians are registered against (:mod:`gsslam.mapping.converged`, ``feedback_min_age``):
 on a revisit the registration is a loop-like constraint against the map of the first pass. A frame whose
@@ -57,7 +59,9 @@ class Registration:
     converged: float = 1.0  # share of the rendered weight (alpha > 0.9) from converged Gaussians
     moved: bool = True  # Gauss-Newton took at least one step from the graph's pose
     at_minimum: bool = True  # its last step was within the information's 1-sigma (gauss_newton: converged)
-    weight: float = 1.0  # share of the information sent: 1 at the minimum, else registration_unconverged_weight
+    weight: float = (
+        1.0  # share of the information sent: 1 at the minimum, else registration_unconverged_weight
+    )
 
 
 def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor, intrinsics=None):

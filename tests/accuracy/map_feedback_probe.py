@@ -11,6 +11,13 @@ truth's frame by the alignment of the final trajectory (Sim(3) in mono, SE(3) in
 with the keyframe's ground truth: did the registration move the keyframe towards it or away? Prints
 ATE and one JSON line per registration; writes ``OUT.json``. Not a test: a measuring tool
 (docs/results.md, "The map's effect on the trajectory, session 9").
+
+Session 10 adds: the registrations withheld (``mapper.registration_unconverged_weight=0``) and whether
+each one moved the pose; whether the graph moved a keyframe between its registration and the sending
+(it should not: both happen in one map step); and staleness: where the map's keyframes were when a
+registration was measured and at the end of the run, the registration carried along with the nearest
+one's motion ("re-expressed") against the ground truth (docs/results.md, "Mono map registrations,
+session 10").
 """
 
 from __future__ import annotations
@@ -157,11 +164,17 @@ def _staleness(d: dict, R: np.ndarray, err, s: float) -> dict:
     near = sorted(common, key=lambda i: float(np.linalg.norm(at[i][:3, 3] - R[:3, 3])))[:5]
     moved = np.mean([fin[i][:3, 3] - at[i][:3, 3] for i in near], axis=0)
     M = fin[near[0]] @ invert_T(at[near[0]])  # the nearest map keyframe's motion since (world frame)
-    out = dict(map_moved_cm=round(100 * s * float(np.linalg.norm(moved)), 2), reexpressed_cm=round(err(M @ R)[0], 2))
+    out = dict(map_moved_cm=round(100 * s * float(np.linalg.norm(moved)), 2))
+    out["reexpressed_cm"] = round(err(M @ R)[0], 2)
     if d.get("final") is not None:
         F = np.array(d["final"])
-        out.update(final_cm=round(err(F)[0], 2), reg_to_final_cm=round(100 * s * float(np.linalg.norm(F[:3, 3] - R[:3, 3])), 2))
+        out["final_cm"] = round(err(F)[0], 2)
+        out["reg_to_final_cm"] = round(100 * s * float(np.linalg.norm(F[:3, 3] - R[:3, 3])), 2)
     return out
+
+
+def _med(xs: list[dict], key: str) -> float:
+    return float(np.median([x[key] for x in xs]))
 
 
 def _summarise(summary: list[dict], recs: list[dict]) -> None:
@@ -170,25 +183,27 @@ def _summarise(summary: list[dict], recs: list[dict]) -> None:
         xs = [x for x in summary if x["moved"] == moved and x.get("sent", True) == sent]
         if xs:
             tw = sum(x["reg_cm"] < x["graph_cm"] for x in xs)
-            print(f"{'sent' if sent else 'withheld'}, {'moved' if moved else 'did not move'}: {len(xs)}, towards the ground truth {tw}, away "
-                  f"{sum(x['reg_cm'] > x['graph_cm'] for x in xs)}; median graph {np.median([x['graph_cm'] for x in xs]):.2f} cm, "
-                  f"registered {np.median([x['reg_cm'] for x in xs]):.2f} cm")  # fmt: skip
+            aw = sum(x["reg_cm"] > x["graph_cm"] for x in xs)
+            what = f"{'sent' if sent else 'withheld'}, {'moved' if moved else 'did not move'}"
+            print(f"{what}: {len(xs)}, towards the ground truth {tw}, away {aw}; median graph "
+                  f"{_med(xs, 'graph_cm'):.2f} cm, registered {_med(xs, 'reg_cm'):.2f} cm")  # fmt: skip
     mb = [d["moved_before_send_m"] for d in recs if "moved_before_send_m" in d]
     if mb:
-        print(f"graph moved the keyframe between measuring and sending: {sum(m > 1e-9 for m in mb)} of {len(mb)} "
+        n = sum(m > 1e-9 for m in mb)
+        print(f"graph moved the keyframe between measuring and sending: {n} of {len(mb)} "
               f"(max {max(mb):.2e} world units)")  # fmt: skip
     st = [x for x in summary if "map_moved_cm" in x]
     if st:
         mm = np.array([x["map_moved_cm"] for x in st])
         print(f"map moved under the registration after it was measured: median {np.median(mm):.2f} cm, "
-              f"> 0.5 cm: {int((mm > 0.5).sum())} of {len(st)}; registered {np.median([x['reg_cm'] for x in st]):.2f} cm, "
-              f"re-expressed {np.median([x['reexpressed_cm'] for x in st]):.2f} cm (median against the ground truth)")  # fmt: skip
+              f"> 0.5 cm: {int((mm > 0.5).sum())} of {len(st)}; registered {_med(st, 'reg_cm'):.2f} cm, "
+              f"re-expressed {_med(st, 'reexpressed_cm'):.2f} cm (median against the ground truth)")  # fmt: skip
 
 
 def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
     """Each sent registration and the graph's pose against the ground truth, in its frame."""
     est, gt = read_tum(Path(out) / "trajectory.tum"), read_tum(Path(out) / "groundtruth.tum")
-    tg = np.asarray(gt.timestamps, dtype=np.float64)  # nearest ground-truth pose within 20 ms (TUM: mocap)
+    tg = np.asarray(gt.timestamps, dtype=np.float64)  # nearest ground truth within 20 ms (TUM: mocap)
     pairs = []
     for t, p in zip(est.timestamps, est.poses):
         j = int(np.argmin(np.abs(tg - t)))
@@ -220,7 +235,8 @@ def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
                     step_deg=round(float(np.degrees(np.linalg.norm(xi[:3]))), 2), maha=round(maha, 2),
                     coverage=round(d["coverage"], 2), residual=round(d["residual"], 3),
                     converged=round(d["converged"], 2), min_info=round(d["min_information"], 0))  # fmt: skip
-        line.update(sent=d["sent"], moved=bool(np.abs(xi).max() > 1e-9), outcome=d.get("outcome"), weight=d.get("sent_scale"))
+        line.update(sent=d["sent"], moved=bool(np.abs(xi).max() > 1e-9), outcome=d.get("outcome"))
+        line["weight"] = d.get("sent_scale")
         line.update(_staleness(d, R, err, s))
         summary.append(line)
         print(json.dumps(line))
@@ -228,9 +244,9 @@ def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
     summary_sent = [x for x in summary if x.get("sent", True)]
     if summary_sent:
         better = sum(x["reg_cm"] < x["graph_cm"] for x in summary_sent)
-        print(f"sent registrations closer to the ground truth than the graph's pose: {better} of {len(summary_sent)}; "
-              f"median graph {np.median([x['graph_cm'] for x in summary_sent]):.2f} cm, "
-              f"registered {np.median([x['reg_cm'] for x in summary_sent]):.2f} cm")  # fmt: skip
+        print(f"sent registrations closer to the ground truth than the graph's pose: {better} of "
+              f"{len(summary_sent)}; median graph {_med(summary_sent, 'graph_cm'):.2f} cm, "
+              f"registered {_med(summary_sent, 'reg_cm'):.2f} cm")  # fmt: skip
     keep = {k: metrics.get(k) for k in ("ate", "ate_keyframes")}
     Path(out + ".json").write_text(
         json.dumps(dict(metrics=keep, scale=s, registrations=summary, records=recs))

@@ -175,6 +175,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.registration_min_information": NONNEG,
     "mapper.registration_max_condition": _ge(1),
     "mapper.registration_information_scale": POS,
+    "mapper.registration_step_halvings": _ge(0),
+    "mapper.registration_unconverged_weight": UNIT,
     "mapper.feedback_min_age": _ge(0),
     "mapper.feedback_min_converged": UNIT,
     "mapper.final_max_iterations": _ge(0),

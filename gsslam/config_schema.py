@@ -185,6 +185,8 @@ class MapperConfig:
     registration_min_information: float = 1000.0  # smallest eigenvalue, rad^-2 and (depth units)^-2
     registration_max_condition: float = 1e4  # largest condition number of that information
     registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
+    registration_step_halvings: int = 2  # a Gauss-Newton step that does not lower the robust cost is halved this often (1 render each)
+    registration_unconverged_weight: float = 0.0  # information share sent when Gauss-Newton did not reach the map's minimum (0: not sent; 1: session 9)
     feedback_min_age: int = 16  # keyframes: feedback only from Gaussians seeded this long ago (0: all; docs)
     feedback_min_converged: float = 0.5  # least share of a view's rendered weight from those Gaussians
     num_threads: int = (

@@ -13,7 +13,9 @@ of renders, Huber-weighted), ``sigma`` each term's robust residual spread at the
 (``registration_information_scale``) the discount for neighbouring pixels' correlated errors and for
 the map having been fitted to nearby views. A registration is returned only where the render explains
 the image (alpha coverage, photometric residual) and the information is well conditioned; a flat,
-textureless render gives none.
+textureless render gives none. Its information is sent whole only where the Gauss-Newton converged (its
+last step within that information's 1-sigma, :func:`gauss_newton`); elsewhere it is scaled by
+``registration_unconverged_weight`` (0: not sent).
 
 Only *converged* Gaussians are registered against (:mod:`gsslam.mapping.converged`, ``feedback_min_age``):
 on a revisit the registration is a loop-like constraint against the map of the first pass. A frame whose
@@ -55,6 +57,11 @@ class Registration:
     min_information: float  # smallest eigenvalue of the depth-normalised information
     condition: float  # its condition number
     converged: float = 1.0  # share of the rendered weight (alpha > 0.9) from converged Gaussians
+    moved: bool = True  # Gauss-Newton took at least one step from the graph's pose
+    at_minimum: bool = True  # its last step was within the information's 1-sigma (gauss_newton: converged)
+    weight: float = (
+        1.0  # share of the information sent: 1 at the minimum, else registration_unconverged_weight
+    )
 
 
 def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor, intrinsics=None):
@@ -142,30 +149,92 @@ def _normal_equations(terms) -> tuple[np.ndarray, np.ndarray]:  # H [6, 6], g [6
     return H, g
 
 
+def _robust_cost(terms, sigmas) -> float:
+    """Mean Huber cost per residual of each term under the given spreads, summed over the terms: the same
+    spreads at both points of a step test, and a mean, so that neither the spread re-estimated at the
+    new point nor the number of pixels under its alpha mask decides whether the step helped."""
+    cost = 0.0
+    for (r, *_), sigma in zip(terms, sigmas):
+        a, k = np.abs(r) / sigma, 1.345
+        cost += float(np.where(a <= k, a * a, 2 * k * a - k * k).mean())
+    return cost
+
+
+def _cost_at(state: MapState, kf: Keyframe, delta: torch.Tensor, sigmas) -> float:
+    """The robust cost at ``delta`` from one render (its own alpha mask), under ``sigmas``."""
+    out = _render_at(state, kf, delta)
+    mask = out.alpha > 0.9
+    dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
+    if int(mask.sum()) < 16:
+        return float("inf")
+    rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)
+    ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
+    rs = [rc, ld - ld.median() if len(ld) else ld]
+    terms = [(r.double().cpu().numpy(),) for r in rs[: len(sigmas)]]
+    if any(len(t[0]) < 16 for t in terms):
+        return float("inf")
+    return _robust_cost(terms, sigmas)
+
+
+@dataclass(frozen=True)
+class GaussNewtonResult:
+    information: np.ndarray  # [6, 6] (phi, rho) at the returned pose, x registration_information_scale
+    coverage: float
+    sigma: float  # colour residual spread there
+    moved: bool  # at least one step was taken
+    converged: bool  # the step still proposed there is within the information's own 1-sigma (below)
+    step_mahalanobis: float  # that step's squared Mahalanobis distance under ``information``
+    steps: int
+
+
 @torch.no_grad()
-def gauss_newton(state: MapState, kf: Keyframe, iterations: int):
-    """Robust Gauss-Newton on ``kf.delta``; returns (information (phi, rho), coverage, colour sigma)."""
+def gauss_newton(state: MapState, kf: Keyframe, iterations: int) -> GaussNewtonResult:
+    """Robust Gauss-Newton on ``kf.delta`` (left at the returned pose).
+
+    A step is taken when it lowers the robust cost (:func:`_robust_cost`, the spreads of the point it
+    starts from); otherwise it is halved, ``registration_step_halvings`` times at most (one render
+    each), and the registration stops there. ``converged``: the Gauss-Newton step at the returned pose,
+    measured by the information sent with it, is within one standard deviation (squared Mahalanobis
+    distance < 1): the pose is where the map's evidence puts it, to the accuracy it claims (that last
+    step is taken, so a converged registration always ends at the map's minimum). A pose whose
+    next step is still larger (the cost test refused it: a non-convex or inconsistent view; or the
+    iterations ran out) is not the map's minimum, and its information there describes the curvature at
+    a point the map does not support (docs/mapping.md, "Registration feedback").
+    """
+    cfg = state.cfg
+    scale = cfg.registration_information_scale
     delta = kf.delta.detach().clone()
-    best = None
-    for it in range(iterations + 1):
-        terms, coverage = _linearize(state, kf, delta)
-        if not terms:
-            return np.zeros((6, 6)), coverage, float("inf")
+    terms, coverage = _linearize(state, kf, delta)
+    if not terms:
+        return GaussNewtonResult(np.zeros((6, 6)), coverage, float("inf"), False, False, float("inf"), 0)
+    moved, steps = False, 0
+    while True:
         H, g = _normal_equations(terms)
-        cost = sum(float((w * r * r).sum()) / s**2 for r, _, w, s in terms)
-        if best is not None and cost > best[0]:  # the step made it worse: keep the last good point
-            delta = best[1]
-            break
-        best = (cost, delta.clone(), H, coverage, terms[0][3])
-        if it == iterations:
-            break
         step = np.linalg.solve(H + 1e-6 * np.trace(H) / 6 * np.eye(6), -g)
-        delta = delta + torch.as_tensor(step, dtype=delta.dtype, device=delta.device)
-        if np.linalg.norm(step[3:]) < 1e-5 and np.linalg.norm(step[:3]) < 1e-5 * kf.median_depth:
+        maha = scale * float(step @ H @ step)
+        if maha < 1.0:  # the last Gauss-Newton step, within the noise: taken without a cost test
+            delta = delta + torch.as_tensor(step, dtype=delta.dtype, device=delta.device)
+            moved = True
             break
-    _, kf.delta, H, coverage, sigma = best
+        if steps == iterations:
+            break
+        sigmas = [t[3] for t in terms]
+        here = _robust_cost(terms, sigmas)
+        taken = None
+        for h in range(cfg.registration_step_halvings + 1):
+            cand = delta + torch.as_tensor(step * 0.5**h, dtype=delta.dtype, device=delta.device)
+            if _cost_at(state, kf, cand, sigmas) < here:
+                taken = cand
+                break
+        if taken is None:
+            break
+        new_terms, new_coverage = _linearize(state, kf, taken)
+        if not new_terms:
+            break
+        delta, terms, coverage, moved, steps = taken, new_terms, new_coverage, True, steps + 1
+    kf.delta = delta
     P = np.r_[3, 4, 5, 0, 1, 2]  # (rho, phi) -> (phi, rho)
-    return state.cfg.registration_information_scale * H[np.ix_(P, P)], coverage, sigma
+    return GaussNewtonResult(scale * H[np.ix_(P, P)], coverage, terms[0][3], moved, maha < 1.0, maha, steps)
 
 
 def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | None:
@@ -182,7 +251,8 @@ def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | N
     if coverage < cfg.registration_min_coverage or share < cfg.feedback_min_converged:
         _log.debug("registration of %d: coverage %.2f, converged %.2f: too low", kf.index, coverage, share)
         return None
-    info, coverage, sigma = gauss_newton(converged_view(state, mask), kf, iterations)
+    gn = gauss_newton(converged_view(state, mask), kf, iterations)
+    info, coverage, sigma = gn.information, gn.coverage, gn.sigma
     D = np.diag([1.0, 1.0, 1.0] + [kf.median_depth] * 3)  # translation in units of the depth
     ev = np.linalg.eigvalsh(D @ info @ D)
     cond = float(ev[-1] / max(ev[0], 1e-12))
@@ -193,13 +263,16 @@ def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | N
         and cond <= cfg.registration_max_condition
     )
     _log.debug(
-        "registration of %d: coverage %.2f converged %.2f sigma %.3f min info %.3g cond %.3g (%s)",
+        "registration of %d: coverage %.2f converged %.2f sigma %.3f min info %.3g cond %.3g steps %d "
+        "last step %.3g (%s)",
         kf.index,
         coverage,
         share,
         sigma,
         ev[0],
         cond,
+        gn.steps,
+        gn.step_mahalanobis,
         "kept" if ok else "gated",
     )
     if not ok:
@@ -208,4 +281,7 @@ def register(state: MapState, kf: Keyframe, iterations: int) -> Registration | N
     T[:3, :3], T[:3, 3] = kf.R, kf.t
 
     T = T @ se3_delta_matrix(kf.delta.detach().cpu().double()).numpy()
-    return Registration(kf.index, T, info, coverage, sigma, float(ev[0]), cond, share)
+    weight = 1.0 if gn.converged else cfg.registration_unconverged_weight
+    return Registration(
+        kf.index, T, weight * info, coverage, sigma, float(ev[0]), cond, share, gn.moved, gn.converged, weight
+    )

@@ -57,6 +57,8 @@ class MapStage:
         self.n_depth_priors = 0
         self.n_registrations = 0  # keyframes registered against the map and sent to the graph
         self.n_registrations_gated = 0  # registered, but the map could not tell their pose
+        self.n_registrations_withheld = 0  # registered, but Gauss-Newton did not reach the map's minimum
+        self.withheld: list[Registration] = []  # the last call's (mapper.registration_unconverged_weight=0)
         self.pending: list[tuple[int, Registration]] = []  # (position in the new submap, registration)
         self.pending_depth: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe -> (uv, depth)
         self.seconds = 0.0
@@ -196,12 +198,16 @@ class MapStage:
     ):
         """Register the new keyframes (at the graph's pose) against the map as it was before them."""
         out = []
+        self.withheld = []
         for idx in new_keyframes:
             pos = list(enc.frame_indices).index(idx)
             T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
             reg = self.mapper.register(by_index[idx], T, enc.points_cam[pos], enc.confidence[pos])
             if reg is None:
                 self.n_registrations_gated += 1
+            elif reg.weight <= 0.0:  # not at the map's minimum: no evidence of where the pose is
+                self.n_registrations_withheld += 1
+                self.withheld.append(reg)
             else:
                 out.append((pos, reg))
         return out
@@ -257,6 +263,7 @@ class MapStage:
             "depth_prior_factors": self.n_depth_priors,
             "registration_factors": self.n_registrations,
             "registrations_gated": self.n_registrations_gated,
+            "registrations_withheld": self.n_registrations_withheld,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,
             "rasterizer_backend": self.mapper.rasterizer_backend,

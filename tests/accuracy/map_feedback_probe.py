@@ -11,6 +11,13 @@ truth's frame by the alignment of the final trajectory (Sim(3) in mono, SE(3) in
 with the keyframe's ground truth: did the registration move the keyframe towards it or away? Prints
 ATE and one JSON line per registration; writes ``OUT.json``. Not a test: a measuring tool
 (docs/results.md, "The map's effect on the trajectory, session 9").
+
+Session 10 adds: the registrations withheld (``mapper.registration_unconverged_weight=0``) and whether
+each one moved the pose; whether the graph moved a keyframe between its registration and the sending
+(it should not: both happen in one map step); and staleness: where the map's keyframes were when a
+registration was measured and at the end of the run, the registration carried along with the nearest
+one's motion ("re-expressed") against the ground truth (docs/results.md, "Mono map registrations,
+session 10").
 """
 
 from __future__ import annotations
@@ -63,22 +70,50 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     orig = MS.MapStage._register
 
     def recorded(self, chains, cid, sid, enc, by_index, new_keyframes):
+        chains_seen[:] = [chains]
         res = orig(self, chains, cid, sid, enc, by_index, new_keyframes)
         sent = {int(reg.index): reg for _, reg in res}
+        held = {int(reg.index): reg for reg in getattr(self, "withheld", [])}  # not at the map's minimum
         for idx in new_keyframes:
             pos = list(enc.frame_indices).index(idx)
             T = self._submap_pose(chains[cid], sid) @ enc.T_local_cam[pos]
             f = by_index[idx]
             d = dict(index=int(idx), ts=float(f.timestamp), T_graph=_rigid(T).tolist(), sent=idx in sent)
+            d["withheld"] = idx in held
             d["scale"] = float(split_sim3(T)[2])
             if f.T_world_cam_gt is not None:
                 d["T_gt"] = np.asarray(f.T_world_cam_gt).tolist()
-            if idx in sent:
-                r = sent[idx]
+            if idx in sent or idx in held:
+                r = sent.get(idx) or held[idx]
                 d.update(T_reg=r.T_world_cam.tolist(), info=r.information.tolist(), coverage=r.coverage)
                 d.update(residual=r.residual, min_information=r.min_information, converged=r.converged)
+                d.update(outcome=getattr(r, "at_minimum", None), sent_scale=getattr(r, "weight", 1.0))
+                # the map's keyframes where the graph had them when this one was measured (staleness)
+                d["map_at"] = {int(i): _rigid(self._keyframe_pose(chains, i)).tolist() for i in self._anchor}
             recs.append(d)
         return res
+
+    orig_final = MS.MapStage.finalize
+
+    def final_poses(self, chains, *a, **k):  # the map's keyframes at the end (after the batch refinement)
+        final.update({int(i): _rigid(self._keyframe_pose(chains, i)).tolist() for i in self._anchor})
+        return orig_final(self, chains, *a, **k)
+
+    final: dict[int, list] = {}
+    MS.MapStage.finalize = final_poses
+    orig_send = MS.MapStage.send_registrations
+    chains_seen: list = []
+
+    def sent_at(self, chain, sid):  # did the graph move the keyframe between measuring and sending?
+        by = {d["index"]: d for d in recs if d["sent"]}
+        for _, reg in self.pending:
+            d = by.get(int(reg.index))
+            if d is not None and int(reg.index) in self._anchor:
+                T = _rigid(self._keyframe_pose(chains_seen[0], int(reg.index)))
+                d["moved_before_send_m"] = float(np.linalg.norm(T[:3, 3] - np.array(d["T_graph"])[:3, 3]))
+        return orig_send(self, chain, sid)
+
+    MS.MapStage.send_registrations = sent_at
 
     MS.MapStage._register = recorded
     kw = dict(row.get("kwargs") or {})
@@ -87,6 +122,12 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
         overwrite=True, **kw,
     )  # fmt: skip
     MS.MapStage._register = orig
+    MS.MapStage.finalize = orig_final
+    MS.MapStage.send_registrations = orig_send
+    for d in recs:
+        d["final"] = final.get(d["index"])
+        if "map_at" in d:  # the final poses of the map's keyframes that were in it at the time
+            d["map_final"] = {i: final[i] for i in d["map_at"] if i in final}
     Path(out + ".records.json").write_text(json.dumps(recs))  # before anything else can fail
     gt_kw = dict(kw, with_depth=False) if mode == "mono" and row["dataset"] == "tum" else kw
     write_tum(
@@ -108,18 +149,73 @@ def main(name: str, mode: str, out: str, *overrides: str) -> None:
     analyse(out, mode, recs, res.metrics)
 
 
+def _staleness(d: dict, R: np.ndarray, err, s: float) -> dict:
+    """How far the map moved under a registration after it was measured: the map's keyframes nearest to
+    the registered pose (5, already in the map then), their poses then and at the end of the run; the
+    registration carried along with the nearest one's rigid motion ("re-expressed") against the ground
+    truth, and the keyframe's final pose against the registered one."""
+    if not d.get("map_at") or not d.get("map_final"):
+        return {}
+    at = {int(i): np.array(T) for i, T in d["map_at"].items()}
+    fin = {int(i): np.array(T) for i, T in d["map_final"].items()}
+    common = [i for i in at if i in fin]
+    if not common:
+        return {}
+    near = sorted(common, key=lambda i: float(np.linalg.norm(at[i][:3, 3] - R[:3, 3])))[:5]
+    moved = np.mean([fin[i][:3, 3] - at[i][:3, 3] for i in near], axis=0)
+    M = fin[near[0]] @ invert_T(at[near[0]])  # the nearest map keyframe's motion since (world frame)
+    out = dict(map_moved_cm=round(100 * s * float(np.linalg.norm(moved)), 2))
+    out["reexpressed_cm"] = round(err(M @ R)[0], 2)
+    if d.get("final") is not None:
+        F = np.array(d["final"])
+        out["final_cm"] = round(err(F)[0], 2)
+        out["reg_to_final_cm"] = round(100 * s * float(np.linalg.norm(F[:3, 3] - R[:3, 3])), 2)
+    return out
+
+
+def _med(xs: list[dict], key: str) -> float:
+    return float(np.median([x[key] for x in xs]))
+
+
+def _summarise(summary: list[dict], recs: list[dict]) -> None:
+    """Moved or not, towards the ground truth or away; how stale the registrations got."""
+    for sent, moved in ((True, True), (True, False), (False, True), (False, False)):
+        xs = [x for x in summary if x["moved"] == moved and x.get("sent", True) == sent]
+        if xs:
+            tw = sum(x["reg_cm"] < x["graph_cm"] for x in xs)
+            aw = sum(x["reg_cm"] > x["graph_cm"] for x in xs)
+            what = f"{'sent' if sent else 'withheld'}, {'moved' if moved else 'did not move'}"
+            print(f"{what}: {len(xs)}, towards the ground truth {tw}, away {aw}; median graph "
+                  f"{_med(xs, 'graph_cm'):.2f} cm, registered {_med(xs, 'reg_cm'):.2f} cm")  # fmt: skip
+    mb = [d["moved_before_send_m"] for d in recs if "moved_before_send_m" in d]
+    if mb:
+        n = sum(m > 1e-9 for m in mb)
+        print(f"graph moved the keyframe between measuring and sending: {n} of {len(mb)} "
+              f"(max {max(mb):.2e} world units)")  # fmt: skip
+    st = [x for x in summary if "map_moved_cm" in x]
+    if st:
+        mm = np.array([x["map_moved_cm"] for x in st])
+        print(f"map moved under the registration after it was measured: median {np.median(mm):.2f} cm, "
+              f"> 0.5 cm: {int((mm > 0.5).sum())} of {len(st)}; registered {_med(st, 'reg_cm'):.2f} cm, "
+              f"re-expressed {_med(st, 'reexpressed_cm'):.2f} cm (median against the ground truth)")  # fmt: skip
+
+
 def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
     """Each sent registration and the graph's pose against the ground truth, in its frame."""
     est, gt = read_tum(Path(out) / "trajectory.tum"), read_tum(Path(out) / "groundtruth.tum")
-    g = {round(t, 6): p for t, p in zip(gt.timestamps, gt.poses)}
-    pairs = [(p, g[round(t, 6)]) for t, p in zip(est.timestamps, est.poses) if round(t, 6) in g]
+    tg = np.asarray(gt.timestamps, dtype=np.float64)  # nearest ground truth within 20 ms (TUM: mocap)
+    pairs = []
+    for t, p in zip(est.timestamps, est.poses):
+        j = int(np.argmin(np.abs(tg - t)))
+        if abs(tg[j] - t) < 0.02:
+            pairs.append((p, gt.poses[j]))
     A = align_positions(np.array([b[:3, 3] for _, b in pairs]), np.array([a[:3, 3] for a, _ in pairs]),
                         "sim3" if mode == "mono" else "se3")  # fmt: skip
     S = A.matrix
     s = float(np.cbrt(np.linalg.det(S[:3, :3])))
     summary = []
     for d in recs:
-        if not d["sent"] or "T_gt" not in d:
+        if "T_reg" not in d or "T_gt" not in d:
             continue
         G, R, Tgt = np.array(d["T_graph"]), np.array(d["T_reg"]), np.array(d["T_gt"])
 
@@ -139,13 +235,18 @@ def analyse(out: str, mode: str, recs: list[dict], metrics: dict) -> None:
                     step_deg=round(float(np.degrees(np.linalg.norm(xi[:3]))), 2), maha=round(maha, 2),
                     coverage=round(d["coverage"], 2), residual=round(d["residual"], 3),
                     converged=round(d["converged"], 2), min_info=round(d["min_information"], 0))  # fmt: skip
+        line.update(sent=d["sent"], moved=bool(np.abs(xi).max() > 1e-9), outcome=d.get("outcome"))
+        line["weight"] = d.get("sent_scale")
+        line.update(_staleness(d, R, err, s))
         summary.append(line)
         print(json.dumps(line))
-    if summary:
-        better = sum(x["reg_cm"] < x["graph_cm"] for x in summary)
-        print(f"registrations closer to the ground truth than the graph's pose: {better} of {len(summary)}; "
-              f"median graph {np.median([x['graph_cm'] for x in summary]):.2f} cm, "
-              f"registered {np.median([x['reg_cm'] for x in summary]):.2f} cm")  # fmt: skip
+    _summarise(summary, recs)
+    summary_sent = [x for x in summary if x.get("sent", True)]
+    if summary_sent:
+        better = sum(x["reg_cm"] < x["graph_cm"] for x in summary_sent)
+        print(f"sent registrations closer to the ground truth than the graph's pose: {better} of "
+              f"{len(summary_sent)}; median graph {_med(summary_sent, 'graph_cm'):.2f} cm, "
+              f"registered {_med(summary_sent, 'reg_cm'):.2f} cm")  # fmt: skip
     keep = {k: metrics.get(k) for k in ("ate", "ate_keyframes")}
     Path(out + ".json").write_text(
         json.dumps(dict(metrics=keep, scale=s, registrations=summary, records=recs))

@@ -60,3 +60,34 @@ def test_registrations_go_to_the_chain_frame_with_their_information():
     np.testing.assert_allclose(sent["T"][0][:3, :3], np.eye(3))
     # a residual of 1 chain unit is 0.5 world units: information / 4 on translation
     np.testing.assert_allclose(np.diag(sent["info"][0]), [1.0, 2.0, 3.0, 1.0, 1.25, 1.5])
+
+
+def test_unconverged_registrations_are_withheld_not_sent():
+    """A registration the mapper returns with weight 0 (its Gauss-Newton did not reach the map's minimum,
+    mapper.registration_unconverged_weight=0) is counted and kept aside, never sent to the graph; gated
+    ones (None) are counted as before; a converged one is sent."""
+    from gsslam.mapping.registration import Registration
+
+    T = np.eye(4)
+    regs = {
+        4: Registration(4, T, np.eye(6), 0.9, 0.03, 1e4, 10.0),  # converged: sent
+        5: Registration(5, T, np.zeros((6, 6)), 0.9, 0.03, 1e4, 10.0, 1.0, False, False, 0.0),  # refused
+        6: None,  # gated
+    }
+    stage, chains = _stage(torch.zeros(1, 1), torch.zeros(1, 1), 1.0)
+    stage.mapper = SimpleNamespace(register=lambda frame, T_wc, pts, conf: regs[frame])
+    stage.n_registrations = stage.n_registrations_gated = stage.n_registrations_withheld = 0
+    stage.withheld = []
+    chains[0].encodings = []
+    enc = SimpleNamespace(
+        frame_indices=[3, 4, 5, 6], T_local_cam=[np.eye(4)] * 4, points_cam=[None] * 4, confidence=[None] * 4
+    )
+    stage.pending = stage._register(chains, 0, 0, enc, {i: i for i in range(3, 7)}, [4, 5, 6])
+    assert [p for p, _ in stage.pending] == [1]  # keyframe 4 only, at its position in the submap
+    assert stage.n_registrations_withheld == 1 and [r.index for r in stage.withheld] == [5]
+    assert stage.n_registrations_gated == 1
+    sent = {}
+    chain = SimpleNamespace(
+        T_world_chain=np.eye(4), graph=SimpleNamespace(add_registration=lambda *a: sent.update(a=a))
+    )
+    assert stage.send_registrations(chain, 0) == 1 and len(sent["a"][1]) == 1

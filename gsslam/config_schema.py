@@ -73,7 +73,7 @@ class EncoderConfig:
     mono_essential_method: str = "ransac"  # mono: robust estimator of the two-view essential matrix (ransac | magsac)
     mono_ba_tracks: str = "two_view"  # mono: local BA tracks: the essential inliers (two_view) or all sampled (all)
     mono_two_view_hypotheses: int = 1  # mono: two-view poses (RANSAC samples) carried through PnP + BA; the best over all tracks is kept
-    mono_focal_auto: bool = True  # mono: focal self-calibration from the first frames (frontend/mono_focal.py)
+    mono_focal_auto: bool = False  # mono: focal self-calibration from the first frames (frontend/mono_focal.py); off: docs/results.md session 10
     mono_focal_frames: int = 60  # frames read for that estimate
     mono_focal_min_dev: float = 0.05  # correct the focal only when |estimate / given - 1| exceeds this
     mono_focal_min_gain: float = 0.01  # ... and the estimate lowers the windows' BA cost by this fraction

@@ -229,9 +229,7 @@ def estimate_mono_focal(
     per = tuple(float(_parabola_min(xs, p)[0]) for p in P)
     agreeing = int(sum(abs(s - s_best) <= agree for s in per))
     c1 = float(np.interp(1.0, xs, total))
-    est = MonoFocalEstimate(
-        s_best, len(P), tracks, c1, float(total.min()), per, agreeing, False
-    )
+    est = MonoFocalEstimate(s_best, len(P), tracks, c1, float(total.min()), per, agreeing, False)
     ok = inside and est.windows >= min_windows and est.gain >= min_gain and 2 * agreeing > est.windows
     log.info(
         "mono focal: scale %.3f from %d windows (%d agree), cost %.0f -> %.0f%s",
@@ -248,7 +246,9 @@ def mono_focal_correction(
     est = estimate_mono_focal(frames, flow, max_side=cfg.pointmap_max_side, min_gain=cfg.mono_focal_min_gain)
     apply = est.ok and abs(est.scale - 1.0) > cfg.mono_focal_min_dev
     if apply:
-        log.info("mono focal: given fx %.1f -> %.1f", frames[0].intrinsics.fx, frames[0].intrinsics.fx * est.scale)
+        log.info(
+            "mono focal: given fx %.1f -> %.1f", frames[0].intrinsics.fx, frames[0].intrinsics.fx * est.scale
+        )
     return (est.scale if apply else 1.0), est
 
 

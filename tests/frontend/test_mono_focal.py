@@ -53,7 +53,8 @@ def test_profile_minimum_at_true_focal_on_exact_tracks(focal_scale):
     rng = np.random.default_rng(0)
     xs = np.round(np.arange(0.84, 1.161, 0.04), 4)  # coarser than the default grid: quicker
     total = sum(
-        mf.window_profile(ds.intrinsics, _exact_window(ds, poses[s : s + 16 : 3], rng, 0.3), xs) for s in (0, 8, 16)
+        mf.window_profile(ds.intrinsics, _exact_window(ds, poses[s : s + 16 : 3], rng, 0.3), xs)
+        for s in (0, 8, 16)
     )
     scale, inside = mf._parabola_min(xs, total)
     # measured 1.0023 (true 1) and 0.8980 (true 0.8977), 0.3 px noise: the estimator itself is unbiased

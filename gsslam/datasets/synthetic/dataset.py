@@ -36,7 +36,16 @@ TRAJECTORIES = {
     "loop": lambda n, arc_deg, s: orbit(n, 360.0, s),
 }
 _PARAMS = (
-    "n_frames", "width", "height", "scene", "trajectory", "seed", "motion_scale", "arc_deg", "fps", "focal_scale"
+    "n_frames",
+    "width",
+    "height",
+    "scene",
+    "trajectory",
+    "seed",
+    "motion_scale",
+    "arc_deg",
+    "fps",
+    "focal_scale",
 )
 
 

@@ -17,8 +17,9 @@ The estimate (deterministic):
    tracks from the window's first frame, chained through consecutive flows and checked forward-backward
    (textured pixels only, ``max_points`` sampled).
 2. For each window at the given focal: two-view pose (essential matrix) to the farthest frame with
-   enough parallax, triangulation, PnP for the others, the local BA (``two_view.bundle_adjust``).
-   Windows without two-view geometry (too little parallax, too few tracks) are left out.
+   enough parallax, triangulation, PnP for the others; without two-view geometry (a pan, little
+   parallax) rotations from homographies and no translation; then the local BA
+   (``two_view.bundle_adjust``). Windows with too few tracks or no homography are left out.
 3. The profile: for each focal scale on a grid (``scales``, outwards from 1 with the previous BA as the
    start, so the profile is continuous), the BA at that focal and the Cauchy cost of all tracks at its
    poses (``mono_init.track_cost``); summed over windows. The estimate is the grid minimum refined by a
@@ -27,8 +28,9 @@ The estimate (deterministic):
    minimum is inside the grid, enough windows took part, the summed cost at the estimate is lower than
    at the given focal by ``min_gain`` (relative), and most windows agree with it within ``agree``.
 
-``apply_mono_focal`` hands out frames with the corrected intrinsics (the run applies it only when
-``ok`` and the scale differs from 1 by more than ``encoder.mono_focal_min_dev``).
+:func:`mono_focal_correction` decides (``ok`` and more than ``encoder.mono_focal_min_dev`` from 1);
+:func:`rescale_focal` hands out a frame with the corrected intrinsics (``run/sequence.py``, with
+``encoder.mono_focal_auto``; off by default, docs/results.md "Mono focal length, session 10").
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
 from gsslam.frontend.depth_registration import IDENTITY, register_frame, registration_correction
 from gsslam.frontend.flow import make_flow_estimator
+from gsslam.frontend.mono_focal import corrected_intrinsics, mono_focal_correction, rescale_focal
 from gsslam.run.checkpoint import (
     CheckpointSchedule,
     dataset_identity,
@@ -216,7 +217,8 @@ def run_dataset(
         reg, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
         if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
-        pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics))  # imports the heavy modules first
+        mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
+        pipe = Pipeline(cfg, corrected_intrinsics(reg.colour_intrinsics(ds.intrinsics), mono_scale))
         if imu_stage is not None:
             pipe.add_plugin(imu_stage)
         start, done, seconds_before, load_seconds = 0, 0, 0.0, None
@@ -240,7 +242,7 @@ def run_dataset(
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    pipe.process(register_frame(frame, reg))
+                    pipe.process(rescale_focal(register_frame(frame, reg), mono_scale))
                     done += 1
                     if progress is not None:
                         progress(done, n, done / max(time.perf_counter() - t0 + seconds_before, 1e-9))
@@ -271,6 +273,11 @@ def run_dataset(
                     "baseline_m_estimated": float(focal.baseline_m), "intrinsics_given_for": focal.given,
                     "cost_px_at_1": focal.cost_registered, "cost_px_at_ratio": focal.cost,
                 }  # fmt: skip
+            if mono_focal is not None:
+                extra["mono_focal"] = {
+                    "scale_estimated": mono_focal.scale, "applied": mono_scale != 1.0, "ok": mono_focal.ok,
+                    "windows": mono_focal.windows, "agreeing": mono_focal.agreeing, "gain": mono_focal.gain,
+                }  # fmt: skip
             if imu_stage is not None:
                 from gsslam.run.imu import imu_metrics
 
@@ -294,6 +301,14 @@ def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (registration 
         min_baseline_m=enc.colour_focal_min_baseline_m,
         min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
     )  # fmt: skip
+
+
+def _mono_focal(ds, cfg: Config, max_frames: int | None):  # -> (focal scale to apply, estimate | None)
+    """Mono: focal self-calibration from the first frames (frontend/mono_focal.py)."""
+    if cfg.mode != "mono" or not cfg.encoder.mono_focal_auto:
+        return 1.0, None
+    n = min(len(ds), cfg.encoder.mono_focal_frames, max_frames or len(ds))
+    return mono_focal_correction([ds[i] for i in range(n)], make_flow_estimator(cfg.flow), cfg.encoder)
 
 
 class RunError(GsslamError):

@@ -119,3 +119,17 @@ def test_presets_cast_exact_depth_and_the_scene_option():
     assert np.isfinite(ds[1].depth).all()
     with pytest.raises(SyntheticDatasetError, match="scene"):
         SyntheticDataset(scene="castle")
+
+
+def test_focal_scale_changes_only_the_intrinsics_handed_out():
+    """``focal_scale``: a mis-calibrated camera (the 7-Scenes mono proxy): same images, focal x scale."""
+    true = SyntheticDataset(n_frames=2, width=64, height=48, seed=1)
+    wrong = SyntheticDataset(n_frames=2, width=64, height=48, seed=1, focal_scale=1.114)
+    a, b = true[1], wrong[1]
+    np.testing.assert_array_equal(a.image, b.image)
+    assert b.intrinsics.fx == pytest.approx(1.114 * a.intrinsics.fx)
+    assert b.intrinsics.fy == pytest.approx(1.114 * a.intrinsics.fy)
+    assert (b.intrinsics.cx, b.intrinsics.cy) == (a.intrinsics.cx, a.intrinsics.cy)
+    assert true.intrinsics == true.true_intrinsics
+    with pytest.raises(SyntheticDatasetError):
+        SyntheticDataset(n_frames=2, focal_scale=0.0)

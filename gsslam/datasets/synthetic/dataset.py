@@ -9,6 +9,11 @@
     scene: room
     trajectory: loop
     seed: 3
+
+``focal_scale`` (default 1): the intrinsics handed out with the frames are the true ones with both
+focal lengths times this (a mis-calibrated camera, e.g. 1.114 as the 7-Scenes loader hands out the
+depth camera's 585 px for a 525 px colour camera); the frames are rendered with the true ones, and
+the depth stays the true depth (a mono run reads no depth).
 """
 
 from __future__ import annotations
@@ -30,7 +35,18 @@ TRAJECTORIES = {
     "line": lambda n, arc_deg, s: sway_line(n, s),
     "loop": lambda n, arc_deg, s: orbit(n, 360.0, s),
 }
-_PARAMS = ("n_frames", "width", "height", "scene", "trajectory", "seed", "motion_scale", "arc_deg", "fps")
+_PARAMS = (
+    "n_frames",
+    "width",
+    "height",
+    "scene",
+    "trajectory",
+    "seed",
+    "motion_scale",
+    "arc_deg",
+    "fps",
+    "focal_scale",
+)
 
 
 class SyntheticDatasetError(SceneError):
@@ -55,6 +71,7 @@ class SyntheticDataset:
         arc_deg: float = 90.0,
         fps: float = 30.0,
         scene: str = "room",
+        focal_scale: float = 1.0,
     ) -> None:
         params: dict[str, Any] = dict(
             n_frames=n_frames,
@@ -66,6 +83,7 @@ class SyntheticDataset:
             motion_scale=motion_scale,
             arc_deg=arc_deg,
             fps=fps,
+            focal_scale=focal_scale,
         )
         if path is not None:
             params.update(self._read_params(Path(path)))
@@ -87,8 +105,13 @@ class SyntheticDataset:
             raise SyntheticDatasetError(f"scene must be one of {', '.join(PRESETS)}, got {params['scene']!r}")
         if not 0.0 < self.motion_scale <= 2.0:
             raise SyntheticDatasetError(f"motion_scale must be in (0, 2], got {self.motion_scale}")
+        focal_scale = float(params["focal_scale"])
+        if not (np.isfinite(focal_scale) and 0.5 <= focal_scale <= 2.0):
+            raise SyntheticDatasetError(f"focal_scale must be in [0.5, 2], got {focal_scale}")
         f = 0.8 * w
-        self.intrinsics = CameraIntrinsics(f, f, (w - 1) / 2.0, (h - 1) / 2.0, w, h)
+        self.true_intrinsics = CameraIntrinsics(f, f, (w - 1) / 2.0, (h - 1) / 2.0, w, h)  # renders
+        fr = f * focal_scale
+        self.intrinsics = CameraIntrinsics(fr, fr, (w - 1) / 2.0, (h - 1) / 2.0, w, h)  # handed out
         self.scene = PRESETS[params["scene"]](seed=int(params["seed"]))
         self._poses = TRAJECTORIES[self.trajectory](
             self.n_frames, float(params["arc_deg"]), self.motion_scale
@@ -137,5 +160,5 @@ class SyntheticDataset:
 
     def render(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ray-cast the scene from ``T_world_cam`` [4, 4] -> (image [H, W, 3], depth [H, W] float32)."""
-        image, depth = self.scene.cast(T_world_cam, self.intrinsics)
+        image, depth = self.scene.cast(T_world_cam, self.true_intrinsics)
         return image, depth.astype(np.float32)

@@ -108,6 +108,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.flow_max_points": _ge(1),
     "graph.wildfire_threshold": NONNEG,
     "graph.batch_max_iterations": _ge(0),
+    "graph.batch_solve": ("lm", "staged"),  # gsslam.graph.staged_solve.BATCH_SOLVES
     "graph.flow_effective_points": NONNEG,
     "graph.keyframe_refine_rot_sigma": POS,
     "graph.keyframe_refine_trans_sigma": POS,

@@ -112,6 +112,9 @@ class GraphConfig:
     flow_max_points: int = 1000  # correspondences kept per flow factor (evenly subsampled)
     wildfire_threshold: float = 0.001  # iSAM2 Gauss-Newton wildfire threshold
     batch_max_iterations: int = 100  # Levenberg-Marquardt iterations of refine_batch
+    # the final batch: "lm" one Levenberg-Marquardt; "staged" first with the robust kernels off (flow
+    # Gaussian, ICP without Huber), then the run's factors from there (gsslam.graph.staged_solve)
+    batch_solve: str = "lm"
 
 
 @dataclass(frozen=True)

@@ -38,6 +38,7 @@ from gsslam.graph.rejection import BATCH_TAG, BackendError, RejectedError, Rejec
 from gsslam.graph.relinearization import RelinearizeThresholds
 from gsslam.graph.replay import replay
 from gsslam.graph.solvability import new_values_determined, solvable
+from gsslam.graph.staged_solve import solve
 from gsslam.graph.typed_values import factor_keys, type_name, value_at, value_dim
 
 __all__ = ["Backend", "BackendError", "RejectedError", "Rejection"]
@@ -53,6 +54,7 @@ class Backend:
         params: gtsam.ISAM2Params | None = None,
         batch_max_iterations: int = 100,
         thresholds: RelinearizeThresholds | None = None,
+        batch_solve: str = "lm",
     ):
         self._params = params if params is not None else gtsam.ISAM2Params()
         # per-character relinearisation thresholds, checked against every new value (None: whatever
@@ -63,6 +65,7 @@ class Backend:
             thresholds.apply(self._params)
         self._isam = gtsam.ISAM2(self._params)
         self._batch_max_iterations = batch_max_iterations
+        self._batch_solve = batch_solve  # refine_batch's method (gsslam.graph.staged_solve)
         self._factors: dict[int, gtsam.NonlinearFactor] = {}  # live factors by handle
         self._index: dict[int, int] = {}  # handle -> iSAM2 factor index (sent factors)
         self._pending: list[int] = []  # handles not yet sent
@@ -74,6 +77,7 @@ class Backend:
         self._specs: dict[int, tuple] = {}  # handle -> factor spec (factors added with one)
         self._estimate: gtsam.Values | None = None
         self.last_result: gtsam.ISAM2Result | None = None
+        self.last_batch = None  # the SolveReport of the last refine_batch
         self.config = None  # the GraphConfig it was made from (from_config), for a replay
         self._log: list[tuple] = []  # every change, in order, as plain data (see replay_log)
         self._unreplayable: str | None = None  # why the log cannot rebuild this backend
@@ -83,7 +87,7 @@ class Backend:
         from gsslam.graph.noise import isam_params
 
         thresholds = RelinearizeThresholds.from_config(cfg)
-        backend = cls(isam_params(cfg), cfg.batch_max_iterations, thresholds)
+        backend = cls(isam_params(cfg), cfg.batch_max_iterations, thresholds, cfg.batch_solve)
         backend.config = cfg
         return backend
 
@@ -350,25 +354,31 @@ class Backend:
         return solvable(sent, values, [self._factors[h] for h in self._pending if h != skip], self._types)
 
     def refine_batch(self, max_iterations: int | None = None) -> float:
-        """Levenberg-Marquardt over the whole graph from the current estimate, then re-seed iSAM2.
+        """The whole graph solved from the current estimate (Levenberg-Marquardt, one-shot or staged:
+        :mod:`gsslam.graph.staged_solve`), then iSAM2 re-seeded with the result.
 
         Pending factors and values are included. Handles stay valid. Returns the final error.
         """
         self._log.append(("batch", max_iterations))
         rejected = self._reject_missing_keys()
         handles = sorted(self._factors)
-        graph = gtsam.NonlinearFactorGraph()
-        for h in handles:
-            graph.add(self._factors[h])
+        factors = [self._factors[h] for h in handles]
         initial = gtsam.Values(self.values())
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(max_iterations or self._batch_max_iterations)
         try:
-            result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+            result, report = solve(
+                self._batch_solve, factors, [self._specs.get(h) for h in handles], initial,
+                max_iterations or self._batch_max_iterations,
+            )  # fmt: skip
         except RuntimeError as e:  # nothing was changed: the iSAM2 state is still the last good one
             raise BackendError(f"batch refinement failed, graph unchanged: {first_line(e)}") from e
-        error = float(graph.error(result))
-        log.debug("batch LM: error %.6g -> %.6g", graph.error(initial), error)
+        log.debug("batch %s: error %.6g -> %.6g", report.method, report.error_initial, report.error_final)
+        self.last_batch = report
+        graph = gtsam.NonlinearFactorGraph()
+        for f in factors:
+            graph.add(f)
+        if self._thresholds_grew:  # a key character new since the last update
+            self._thresholds.apply(self._params)
+            self._thresholds_grew = False
         self._isam = gtsam.ISAM2(self._params)
         res = self._isam.update(graph, result)
         self._index = {h: int(i) for h, i in zip(handles, res.getNewFactorsIndices())}
@@ -376,7 +386,7 @@ class Backend:
         self._estimate = None
         if rejected:
             raise RejectedError(rejected)
-        return error
+        return report.error_final
 
     # -- reading ----------------------------------------------------------------------------
     def values(self) -> gtsam.Values:

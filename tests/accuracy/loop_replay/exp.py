@@ -68,9 +68,12 @@ def main():
         from gsslam.frontend.depth_registration import register_frame, registration_correction
         from gsslam.frontend.flow import make_flow_estimator
         nf = min(len(ds), cfg.encoder.colour_focal_frames, a.max_frames or len(ds))
+        enc = cfg.encoder  # the same arguments as run/sequence.py (session 9's registration fix)
         reg, _ = registration_correction([ds[i] for i in range(nf)], make_flow_estimator(cfg.flow),
-                                         min_dev=cfg.encoder.colour_focal_min_dev,
-                                         min_baseline_m=cfg.encoder.colour_focal_min_baseline_m)
+                                         min_dev=enc.colour_focal_min_dev,
+                                         min_baseline_m=enc.colour_focal_min_baseline_m,
+                                         min_gain=enc.colour_focal_min_gain,
+                                         fallback_gap=enc.colour_focal_fallback_gap or None)
         if reg.is_identity():
             reg = None
         else:

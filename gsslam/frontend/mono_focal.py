@@ -41,6 +41,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from gsslam.config import EncoderConfig
+from gsslam.frontend.colour_focal import parabola_min
 from gsslam.frontend.encoder import pointmap_intrinsics, resize_image
 from gsslam.frontend.flow import FlowEstimator, compose_flows, forward_backward_mask, textured_mask
 from gsslam.frontend.mono_init import track_cost
@@ -183,18 +184,6 @@ def window_profile(
     return costs
 
 
-def _parabola_min(xs: np.ndarray, cs: np.ndarray) -> tuple[float, bool]:
-    j = int(np.argmin(cs))
-    x = float(xs[j])
-    inside = 0 < j < len(xs) - 1
-    if inside:
-        a, b, c = cs[j - 1], cs[j], cs[j + 1]
-        den = a - 2 * b + c
-        if den > 0:
-            x += 0.5 * (a - c) / den * float(xs[j + 1] - xs[j])
-    return x, inside
-
-
 def estimate_mono_focal(
     frames: list[Frame],  # the first frames of the sequence (colour only is read)
     flow: FlowEstimator,
@@ -227,8 +216,8 @@ def estimate_mono_focal(
         return MonoFocalEstimate(1.0, 0, 0, float("nan"), float("nan"), (), 0, False)
     P = np.stack(profiles)  # [windows, S]
     total = P.sum(0)
-    s_best, inside = _parabola_min(xs, total)
-    per = tuple(float(_parabola_min(xs, p)[0]) for p in P)
+    s_best, _, inside = parabola_min(xs, total)
+    per = tuple(float(parabola_min(xs, p)[0]) for p in P)
     agreeing = int(sum(abs(s - s_best) <= agree for s in per))
     c1 = float(np.interp(1.0, xs, total))
     est = MonoFocalEstimate(s_best, len(P), tracks, c1, float(total.min()), per, agreeing, False)

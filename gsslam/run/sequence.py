@@ -214,7 +214,7 @@ def run_dataset(
 
         imu_stage = make_imu_stage(cfg, ds)
     with RunFolder(out, overwrite=overwrite, resume=resume):
-        reg, focal = _colour_focal(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
+        reg, focal = colour_registration(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
         if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
@@ -289,8 +289,9 @@ def run_dataset(
     return result
 
 
-def _colour_focal(ds, cfg: Config, max_frames: int | None):  # -> (registration to apply, its estimate | None)
-    """RGB-D: depth-to-colour registration from the first frames (frontend/depth_registration.py)."""
+def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (registration to apply, its estimate | None)
+    """RGB-D: depth-to-colour registration from the first frames (frontend/depth_registration.py), as a
+    run estimates it; a run that applies a registration also takes its poses from depth (``rgbd_icp``)."""
     if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
         return IDENTITY, None
     n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))

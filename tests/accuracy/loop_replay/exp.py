@@ -62,22 +62,14 @@ def main():
         kw.setdefault("with_depth", False)
     ds = open_dataset(dsname, path, **kw)
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={'true' if a.loops=='on' else 'false'}", *a.set], mode=a.mode)
-    reg = None
-    if a.mode == "rgbd" and cfg.encoder.colour_focal_auto:  # as the runner does (run/sequence.py, session 5)
-        from dataclasses import replace
-        from gsslam.frontend.depth_registration import register_frame, registration_correction
-        from gsslam.frontend.flow import make_flow_estimator
-        nf = min(len(ds), cfg.encoder.colour_focal_frames, a.max_frames or len(ds))
-        enc = cfg.encoder  # the same arguments as run/sequence.py (session 9's registration fix)
-        reg, _ = registration_correction([ds[i] for i in range(nf)], make_flow_estimator(cfg.flow),
-                                         min_dev=enc.colour_focal_min_dev,
-                                         min_baseline_m=enc.colour_focal_min_baseline_m,
-                                         min_gain=enc.colour_focal_min_gain,
-                                         fallback_gap=enc.colour_focal_fallback_gap or None)
-        if reg.is_identity():
-            reg = None
-        else:
-            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))
+    from dataclasses import replace
+    from gsslam.frontend.depth_registration import register_frame
+    from gsslam.run.sequence import colour_registration
+    reg, _ = colour_registration(ds, cfg, a.max_frames)  # as the runner does (run/sequence.py)
+    if reg.is_identity():
+        reg = None
+    else:
+        cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))
     pipe = Pipeline(cfg, ds.intrinsics if reg is None else reg.colour_intrinsics(ds.intrinsics))
     n = len(ds) if a.max_frames is None else min(len(ds), a.max_frames)
     t0 = time.time()

@@ -50,19 +50,13 @@ def main():
     ds = open_dataset(row["dataset"], path, **kw)
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={'true' if a.loops == 'on' else 'false'}", *a.set], mode=a.mode)
     n = min(len(ds), row.get("frames") or len(ds), a.max_frames or len(ds))
-    reg = None
-    if a.mode == "rgbd" and cfg.encoder.colour_focal_auto:  # the arguments of run/sequence.py
-        from gsslam.frontend.depth_registration import register_frame, registration_correction
-        from gsslam.frontend.flow import make_flow_estimator
-        enc = cfg.encoder
-        reg, _ = registration_correction([ds[i] for i in range(min(n, enc.colour_focal_frames))],
-                                         make_flow_estimator(cfg.flow), min_dev=enc.colour_focal_min_dev,
-                                         min_baseline_m=enc.colour_focal_min_baseline_m, min_gain=enc.colour_focal_min_gain,
-                                         fallback_gap=enc.colour_focal_fallback_gap or None)
-        if reg.is_identity():
-            reg = None
-        else:
-            cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))
+    from gsslam.frontend.depth_registration import register_frame
+    from gsslam.run.sequence import colour_registration
+    reg, _ = colour_registration(ds, cfg, n)  # as the runner does
+    if reg.is_identity():
+        reg = None
+    else:
+        cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))
     pipe = Pipeline(cfg, ds.intrinsics if reg is None else reg.colour_intrinsics(ds.intrinsics))
     t0 = time.time()
     for i in range(n):

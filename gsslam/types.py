@@ -11,7 +11,7 @@ Conventions (see docs/conventions.md):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -75,6 +75,12 @@ class CameraIntrinsics:
             height=h,
             distortion=self.distortion,
         )
+
+    def with_focal(self, scale: float) -> CameraIntrinsics:
+        """The same camera with both focal lengths times ``scale`` (itself at 1.0)."""
+        if scale == 1.0:
+            return self
+        return replace(self, fx=self.fx * scale, fy=self.fy * scale)
 
     def undistorted(self) -> CameraIntrinsics:
         return CameraIntrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height, ())

@@ -64,12 +64,10 @@ class DepthRegistration:
     ok: bool = False  # enough pairs and points, minimum inside the scanned range
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
-        s = 1.0 / self.ratio if self.given == "depth" else 1.0
-        return replace(intr, fx=intr.fx * s, fy=intr.fy * s)
+        return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
 
     def depth_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
-        s = 1.0 if self.given == "depth" else self.ratio
-        return replace(intr, fx=intr.fx * s, fy=intr.fy * s)
+        return intr.with_focal(1.0 if self.given == "depth" else self.ratio)
 
     def is_identity(self) -> bool:
         return self.ratio == 1.0 and self.baseline_m == 0.0
@@ -113,7 +111,7 @@ def _fit_depth_given(pairs, intr, with_baseline: bool):
 
 
 def _icp_at(pairs, intr: CameraIntrinsics, k: float, strides) -> list[np.ndarray] | None:
-    d = replace(intr, fx=intr.fx * k, fy=intr.fy * k)
+    d = intr.with_focal(k)
     Ts = [pair_icp(p, d, strides) for p in pairs]
     return None if any(T is None for T in Ts) else Ts
 

@@ -261,3 +261,26 @@ def textured_mask(img: np.ndarray, min_gradient: float = 0.02) -> np.ndarray:  #
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     mag = cv2.blur(np.sqrt(gx * gx + gy * gy), (5, 5))
     return mag > min_gradient
+
+
+def chained_flows(
+    imgs: list[np.ndarray],  # [W] images [H, W, 3]
+    flow: FlowEstimator,
+    fb_threshold_px: float,
+    min_gradient: float = 0.02,
+) -> tuple[list, list, list]:  # fw, bw [W] of [H, W, 2], valid [W] of [H, W] bool; index 0 None
+    """Flows 0 -> i and i -> 0 chained through consecutive frames, and the pixels of frame 0 whose chain
+    is forward-backward consistent (``fb_threshold_px`` + 1 % of the flow) and textured (``min_gradient``)."""
+    n = len(imgs)
+    tex = textured_mask(imgs[0], min_gradient)
+    fw, bw, valid = [None] * n, [None] * n, [None] * n
+    for i in range(1, n):
+        f = flow(imgs[i - 1], imgs[i])
+        b = flow(imgs[i], imgs[i - 1])
+        fw[i] = f if i == 1 else compose_flows(fw[i - 1], f)
+        bw[i] = b if i == 1 else compose_flows(b, bw[i - 1])
+        ok = forward_backward_mask(
+            np.nan_to_num(fw[i], nan=1e6), np.nan_to_num(bw[i], nan=1e6), fb_threshold_px, relative=0.01
+        )
+        valid[i] = ok & tex
+    return fw, bw, valid

@@ -42,7 +42,14 @@ from gsslam.frontend.encoder import (
     resize_image,
     robust_depth_stats,
 )
-from gsslam.frontend.flow import DISFlow, FlowEstimator, compose_flows, forward_backward_mask, textured_mask
+from gsslam.frontend.flow import (
+    DISFlow,
+    FlowEstimator,
+    chained_flows,
+    compose_flows,
+    forward_backward_mask,
+    textured_mask,
+)
 from gsslam.frontend.mono_init import (
     choose_hypothesis,
     local_poses,
@@ -74,28 +81,6 @@ class MonoEncoder:
             self.flow = DISFlow(cfg.mono_dis_preset, flow.max_side, flow.finest_scale)
         self.rng = np.random.default_rng(seed)
 
-    # -- tracks -------------------------------------------------------------------------------
-    def _tracks(self, imgs):
-        """Chained flows 0 -> i and i -> 0 and their validity masks (index 0 unused)."""
-        n = len(imgs)
-        tex = textured_mask(imgs[0], self.cfg.min_texture_gradient)
-        fw, bw, valid = [None] * n, [None] * n, [None] * n
-        for i in range(1, n):
-            f = self.flow(imgs[i - 1], imgs[i])
-            b = self.flow(imgs[i], imgs[i - 1])
-            fw[i] = f if i == 1 else compose_flows(fw[i - 1], f)
-            bw[i] = b if i == 1 else compose_flows(b, bw[i - 1])
-            valid[i] = (
-                forward_backward_mask(
-                    np.nan_to_num(fw[i], nan=1e6),
-                    np.nan_to_num(bw[i], nan=1e6),
-                    FB_THRESHOLD_PX,
-                    relative=0.01,
-                )
-                & tex
-            )
-        return fw, bw, valid
-
     # -- main ---------------------------------------------------------------------------------
     def encode(
         self,
@@ -118,7 +103,7 @@ class MonoEncoder:
         sc = None
         if sd is not None and shared_confidence is not None:
             sc = resize_depth(np.nan_to_num(np.asarray(shared_confidence, np.float32)), intr)
-        fw, bw, valid = self._tracks(imgs)
+        fw, bw, valid = chained_flows(imgs, self.flow, FB_THRESHOLD_PX, self.cfg.min_texture_gradient)
         meta: dict = {"degenerate": False, "reason": "ok", "pnp_failed": [], "scale_source": "median_depth"}
 
         # two-view initialisation against the farthest usable frame

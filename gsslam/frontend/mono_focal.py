@@ -43,7 +43,7 @@ import numpy as np
 from gsslam.config import EncoderConfig
 from gsslam.frontend.colour_focal import parabola_min
 from gsslam.frontend.encoder import pointmap_intrinsics, resize_image
-from gsslam.frontend.flow import FlowEstimator, compose_flows, forward_backward_mask, textured_mask
+from gsslam.frontend.flow import FlowEstimator, chained_flows
 from gsslam.frontend.mono_init import track_cost
 from gsslam.frontend.pose_estimation import pnp, random_flow_matches
 from gsslam.frontend.two_view import bundle_adjust, rotation_from_homography, triangulate_rays, two_view_pose
@@ -83,20 +83,8 @@ class TrackWindow:
 def window_tracks(imgs: list[np.ndarray], flow: FlowEstimator, max_points: int, rng) -> TrackWindow:
     """Tracks from frame 0 of ``imgs`` chained through consecutive flows, checked forward-backward."""
     n = len(imgs)
-    h, w = imgs[0].shape[:2]
-    tex = textured_mask(imgs[0])
-    fw = bw = None
-    valids, fws = [None], [None]
-    for i in range(1, n):
-        f = flow(imgs[i - 1], imgs[i])
-        b = flow(imgs[i], imgs[i - 1])
-        fw = f if i == 1 else compose_flows(fw, f)
-        bw = b if i == 1 else compose_flows(b, bw)
-        ok = forward_backward_mask(
-            np.nan_to_num(fw, nan=1e6), np.nan_to_num(bw, nan=1e6), FB_THRESHOLD_PX, relative=0.01
-        )
-        valids.append(ok & tex)
-        fws.append(fw)
+    w = imgs[0].shape[1]
+    fws, _, valids = chained_flows(imgs, flow, FB_THRESHOLD_PX)
     uv0, _, _ = random_flow_matches(fws[1], valids[1], None, max_points, rng)
     ui = np.round(uv0).astype(int)
     lin = ui[:, 1] * w + ui[:, 0]
@@ -156,19 +144,12 @@ def _rotation_init(K: np.ndarray, win: TrackWindow):  # -> (T_i_0 [W, 4, 4], rho
     return T, np.full(int(mask.sum()), 0.1), mask
 
 
-def _K(intr: CameraIntrinsics, s: float) -> np.ndarray:
-    K = intr.K.copy()
-    K[0, 0] *= s
-    K[1, 1] *= s
-    return K
-
-
 def window_profile(
     intr: CameraIntrinsics, win: TrackWindow, scales: np.ndarray
 ) -> np.ndarray | None:  # [S] Cauchy cost per scale, None when the window has no two-view geometry
     """The window's BA cost at each focal scale (module doc, step 3)."""
     scales = np.asarray(scales, np.float64)
-    init = _init_poses(_K(intr, 1.0), win)
+    init = _init_poses(intr.K, win)
     if init is None:
         return None
     T1, rho1, mask = init
@@ -178,7 +159,7 @@ def window_profile(
     for order in (range(j1, len(scales)), range(j1, -1, -1)):  # outwards from 1, warm-started
         T, rho = T1, rho1
         for j in order:
-            K = _K(intr, scales[j])
+            K = intr.with_focal(float(scales[j])).K
             T, rho = bundle_adjust(K, T, uv0, rho, obs, THRESHOLD_PX)
             costs[j] = track_cost(K, T, win.uv0, win.obs, THRESHOLD_PX)
     return costs
@@ -247,10 +228,4 @@ def rescale_focal(frame: Frame, scale: float) -> Frame:
     """``frame`` with both focal lengths times ``scale`` (the same frame at 1.0)."""
     if scale == 1.0:
         return frame
-    return replace(frame, intrinsics=corrected_intrinsics(frame.intrinsics, scale))
-
-
-def corrected_intrinsics(intr: CameraIntrinsics, scale: float) -> CameraIntrinsics:
-    if scale == 1.0:
-        return intr
-    return replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)
+    return replace(frame, intrinsics=frame.intrinsics.with_focal(scale))

@@ -33,7 +33,7 @@ from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
 from gsslam.frontend.depth_registration import IDENTITY, register_frame, registration_correction
 from gsslam.frontend.flow import make_flow_estimator
-from gsslam.frontend.mono_focal import corrected_intrinsics, mono_focal_correction, rescale_focal
+from gsslam.frontend.mono_focal import mono_focal_correction, rescale_focal
 from gsslam.run.checkpoint import (
     CheckpointSchedule,
     dataset_identity,
@@ -218,7 +218,7 @@ def run_dataset(
         if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
-        pipe = Pipeline(cfg, corrected_intrinsics(reg.colour_intrinsics(ds.intrinsics), mono_scale))
+        pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))
         if imu_stage is not None:
             pipe.add_plugin(imu_stage)
         start, done, seconds_before, load_seconds = 0, 0, 0.0, None

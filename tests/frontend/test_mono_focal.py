@@ -82,4 +82,4 @@ def test_bundled_teddy_at_its_focal_left_alone(bundled_tum):
     # measured 1.004, not trusted (gain 0.000, 4 of 8 windows agree): tests/accuracy/mono_focal_probe.py teddy
     assert scale == 1.0, est
     assert mf.rescale_focal(frames[0], scale) is frames[0]
-    assert mf.corrected_intrinsics(TUM_FR3, 1.0) is TUM_FR3
+    assert TUM_FR3.with_focal(1.0) is TUM_FR3

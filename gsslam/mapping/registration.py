@@ -59,9 +59,7 @@ class Registration:
     converged: float = 1.0  # share of the rendered weight (alpha > 0.9) from converged Gaussians
     moved: bool = True  # Gauss-Newton took at least one step from the graph's pose
     at_minimum: bool = True  # its last step was within the information's 1-sigma (gauss_newton: converged)
-    weight: float = (
-        1.0  # share of the information sent: 1 at the minimum, else registration_unconverged_weight
-    )
+    weight: float = 1.0  # share of the information sent: 1 at the minimum, else registration_unconverged_weight
 
 
 def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor, intrinsics=None):
@@ -75,12 +73,23 @@ def _render_at(state: MapState, kf: Keyframe, delta: torch.Tensor, intrinsics=No
         kf.delta = saved
 
 
-def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.Tensor, dmask: torch.Tensor):
-    """Colour residuals [3M] under ``mask`` and median-normalised log-depth residuals [Md] under ``dmask``."""
-    out = _render_at(state, kf, delta)
+def _masks(out, kf: Keyframe) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixels a render explains (alpha > 0.9) and those of them with a valid depth in both."""
+    mask = out.alpha > 0.9
+    return mask, mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
+
+
+def _residuals_of(out, kf: Keyframe, mask: torch.Tensor, dmask: torch.Tensor):
+    """Colour residuals [3M] of the render ``out`` under ``mask`` and median-normalised log-depth
+    residuals [Md] under ``dmask``."""
     rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
     ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
-    return rc, ld - ld.median()
+    return rc, ld - ld.median() if len(ld) else ld
+
+
+def _residuals(state: MapState, kf: Keyframe, delta: torch.Tensor, mask: torch.Tensor, dmask: torch.Tensor):
+    """:func:`_residuals_of` the render at ``delta``."""
+    return _residuals_of(_render_at(state, kf, delta), kf, mask, dmask)
 
 
 def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
@@ -89,8 +98,7 @@ def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
     render's exact slopes from 2 more renders (``subpixel``) or by central differences of 12 more renders
     (``central``)."""
     out = _render_at(state, kf, delta)
-    mask = out.alpha > 0.9
-    dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
+    mask, dmask = _masks(out, kf)
     coverage = float(mask.float().mean())
     if int(mask.sum()) < 16:
         return None, coverage
@@ -115,13 +123,11 @@ def _linearize(state: MapState, kf: Keyframe, delta: torch.Tensor):
 def _warp_terms(state: MapState, kf: Keyframe, out, mask: torch.Tensor, dmask: torch.Tensor, shifted=None):
     """Residuals and their Jacobians [M, 6] from the render ``out`` (its warp; ``shifted``: the renders
     that give its exact slopes, :func:`~gsslam.mapping.render_jacobian.subpixel_intrinsics`)."""
-    rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)  # colour is premultiplied
-    ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
+    rc, rd = _residuals_of(out, kf, mask, dmask)
     Jc, Jd = warp_jacobians(out, kf.image, state.K, shifted=shifted)  # [H, W, 3, 6], [H, W, 6]
     Jc, Jd = Jc[mask].reshape(-1, 6), Jd[dmask]
-    rd = ld - ld.median() if len(ld) else ld
-    if len(ld) >= 16:  # the median moves with the pixels whose residual is at it: subtract their mean slope
-        near = torch.argsort((ld - ld.median()).abs())[: max(16, len(ld) // 10)]
+    if len(rd) >= 16:  # the median moves with the pixels whose residual is at it: subtract their mean slope
+        near = torch.argsort(rd.abs())[: max(16, len(rd) // 10)]
         Jd = Jd - Jd[near].mean(0)
     return rc, rd, Jc.double().cpu().numpy(), Jd.double().cpu().numpy()
 
@@ -163,14 +169,10 @@ def _robust_cost(terms, sigmas) -> float:
 def _cost_at(state: MapState, kf: Keyframe, delta: torch.Tensor, sigmas) -> float:
     """The robust cost at ``delta`` from one render (its own alpha mask), under ``sigmas``."""
     out = _render_at(state, kf, delta)
-    mask = out.alpha > 0.9
-    dmask = mask & torch.isfinite(kf.depth) & (kf.depth > 1e-3) & (out.depth > 1e-3)
+    mask, dmask = _masks(out, kf)
     if int(mask.sum()) < 16:
         return float("inf")
-    rc = (out.color - kf.image * out.alpha[..., None])[mask].reshape(-1)
-    ld = torch.log(out.depth[dmask].clamp_min(1e-6)) - torch.log(kf.depth[dmask])
-    rs = [rc, ld - ld.median() if len(ld) else ld]
-    terms = [(r.double().cpu().numpy(),) for r in rs[: len(sigmas)]]
+    terms = [(r.double().cpu().numpy(),) for r in _residuals_of(out, kf, mask, dmask)[: len(sigmas)]]
     if any(len(t[0]) < 16 for t in terms):
         return float("inf")
     return _robust_cost(terms, sigmas)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -64,6 +65,8 @@ def test_stages_report_their_progress(mapped_run):
     assert d == t == m["mapper"]["n_keyframes"] + m["mapper"]["n_other"]
     # the true peak: measured after the map's evaluation, never below the one before it
     assert m["peak_rss_mb"] >= m["peak_rss_mb_before_outputs"] > 100
+    # the run's own peak (reset when it started; a batch runs many in one process), on Linux
+    assert m["peak_rss_scope"] == ("run" if sys.platform.startswith("linux") else "process")
 
 
 def test_mapped_run_writes_map_renders_and_metrics(mapped_run):

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gsslam.run.memory import peak_rss_mb, rss_mb
+
 DEFAULT_PATH = Path(__file__).resolve().parents[2] / "data" / "rgbd_dataset_freiburg3_teddy_60"
 
 
@@ -94,29 +96,6 @@ def run(
         "cpu_cores": os.cpu_count(),
         "ate_rmse_m": m["ate"]["rmse_m"] if m.get("ate") else None,
     }
-
-
-def _rss_mb() -> float:
-    """Resident memory now (Linux ``/proc``; elsewhere the peak so far)."""
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
-    except OSError:
-        return _peak_rss_mb()
-
-
-def _peak_rss_mb() -> float:
-    """Peak resident memory of this process: ``VmHWM`` of ``/proc/self/status`` (else ``ru_maxrss``)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024  # kB
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def growth_mb_per_100_frames(rss: list[tuple[int, float]], skip: int = 100) -> float | None:
@@ -197,7 +176,7 @@ def _one_length(
 
     def frames(done: int, total: int, fps: float) -> None:
         if done % 10 == 0 or done == total:
-            rss.append((done, round(_rss_mb(), 1)))
+            rss.append((done, round(rss_mb(), 1)))
 
     with tempfile.TemporaryDirectory() as tmp:
         m = run_dataset(ds, cfg, Path(tmp), max_frames=n, progress=frames).metrics
@@ -223,7 +202,7 @@ def _one_length(
         "total_s": round(total, 1),
         "cpu_s": round(cpu, 1),
         "final_pass_share": round(stages["final pass"] / total, 3),
-        "peak_rss_mb": round(_peak_rss_mb()),
+        "peak_rss_mb": round(peak_rss_mb()),
         "rss_mb_at_end_of_frames": rss[-1][1] if rss else None,
         "rss_growth_mb_per_100_frames": growth_mb_per_100_frames(rss),
         "last_checkpoint_mb": round(ck.get("bytes_last", 0) / 1e6, 1),

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import json
 import logging
-import resource
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -29,16 +27,11 @@ from gsslam.errors import GsslamError
 from gsslam.eval.ate import compute_ate
 from gsslam.io.atomic import atomic_write_text
 from gsslam.io.trajectory import write_tum
+from gsslam.run.memory import peak_rss_mb
 from gsslam.slam.pipeline import Pipeline
 from gsslam.types import StageProgress, Trajectory
 
 log = logging.getLogger(__name__)
-
-
-def peak_rss_mb() -> float:
-    """The process's maximum resident set size so far (``getrusage``), in MB."""
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
 
 
 def trajectory_of(pipe: Pipeline, poses: dict[int, np.ndarray]) -> Trajectory:
@@ -110,8 +103,10 @@ def write_outputs(
     """Write the trajectories, ``metrics.json`` (partial), the plot, the map outputs, then ``metrics.json``
     complete; returns the metrics.
 
-    ``peak_rss_mb`` is the process's maximum resident size at the very end (after the map's
-    evaluation); ``peak_rss_mb_before_outputs`` the same before the outputs were written.
+    ``peak_rss_mb`` is the peak resident size at the very end (after the map's evaluation);
+    ``peak_rss_mb_before_outputs`` the same before the outputs were written: the run's own peak where
+    :func:`gsslam.run.memory.reset_peak_rss` could reset it when the run started (Linux), else the
+    process's (``peak_rss_scope`` in ``extra`` says which).
     """
     try:
         poses = pipe.frame_poses()

@@ -44,6 +44,7 @@ from gsslam.run.checkpoint import (
 )
 from gsslam.run.folder import RunFolder
 from gsslam.run.interrupt import DeferredInterrupt
+from gsslam.run.memory import reset_peak_rss
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
 from gsslam.slam.pipeline import Pipeline
@@ -214,6 +215,7 @@ def run_dataset(
 
         imu_stage = make_imu_stage(cfg, ds)
     with RunFolder(out, overwrite=overwrite, resume=resume):
+        rss_scope = "run" if reset_peak_rss() else "process"  # a batch runs many in one process
         reg, focal = colour_registration(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
         if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
@@ -265,6 +267,7 @@ def run_dataset(
             extra = {
                 "resumed_from_frame": start if resume else None,
                 "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
+                "peak_rss_scope": rss_scope,
             }
             if focal is not None:
                 extra["colour_focal"] = {

@@ -156,7 +156,7 @@ def test_compositor_threads_give_the_same_image_and_gradients_up_to_summation_or
     about equal pairs (here most of them in the lower half of the view). The image is bit for bit the
     one-band image (each pixel is one band's); gradients are summed per band, then across bands."""
     from gsslam.mapping.projection import project_gaussians
-    from gsslam.mapping.rasterize_cpu import band_threads, compositor_threads, composite_cpu
+    from gsslam.mapping.rasterize_cpu import band_threads, composite_cpu, compositor_threads
 
     w, h = 64, 48
     means, quats, scales, opacities, colors = random_scene(1500, seed=4, dtype=dtype)
@@ -175,7 +175,8 @@ def test_compositor_threads_give_the_same_image_and_gradients_up_to_summation_or
         for n in (1, 2, 3):
             with compositor_threads(n):
                 assert band_threads() == n
-                ins = [t.detach().clone().requires_grad_(True) for t in (p.means2d, p.conics, opacities, feat)]
+                leaves = (p.means2d, p.conics, opacities, feat)
+                ins = [t.detach().clone().requires_grad_(True) for t in leaves]
                 out, alpha = composite_cpu(*ins, p.depths, radii, w, h)
                 ((out * g_feat).sum() + (alpha * g_alpha).sum()).backward()
             results[n] = [out.detach(), alpha.detach()] + [t.grad for t in ins]

@@ -172,6 +172,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.pose_min_gain": UNIT,
     "mapper.pose_init_prior": NONNEG,
     "mapper.num_threads": _ge(0),
+    "mapper.final_num_threads": _ge(0),
     "mapper.registration_iterations": _ge(1),
     "mapper.registration_jacobian": ("warp", "subpixel", "central"),
     "mapper.registration_min_coverage": UNIT,

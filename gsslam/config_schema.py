@@ -178,6 +178,7 @@ class MapperConfig:
     final_pose_iterations: int = 0  # final joint pose+map refinement after finalize() (0: off; docs)
     final_lr_pose: float = 5e-4  # its Adam step of the keyframe se(3) deltas (decays to 10 %)
     final_pose_prior: float = 0.1  # its lambda_pose_prior (anchor to the graph poses)
+    final_num_threads: int = 0  # after the frames: compositor threads (0: every core; torch keeps num_threads; docs)
     pose_window: int = 2  # newest keyframes of the window whose poses are refined jointly with the map
     lambda_pose_prior: float = 1.0  # anchors pose deltas to the given (graph) poses
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation

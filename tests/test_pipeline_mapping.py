@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -47,12 +48,20 @@ def _run(bundled_tum, out, extra=(), stages=None):
 
 
 STAGES: list[tuple[str, int, int]] = []
+IN_FINAL_PASS: set[tuple[tuple[str, ...], int, int]] = set()  # (Python threads, torch's, compositor's)
+
+
+def _stage(*a) -> None:
+    STAGES.append(a)
+    if a[0] == "final pass":
+        names = tuple(sorted(t.name for t in threading.enumerate()))
+        IN_FINAL_PASS.add((names, torch.get_num_threads(), rasterize_cpu.band_threads()))
 
 
 @pytest.fixture(scope="module")
 def mapped_run(bundled_tum, tmp_path_factory):
     out = tmp_path_factory.mktemp("mapped")
-    return out, _run(bundled_tum, out, stages=lambda *a: STAGES.append(a))
+    return out, _run(bundled_tum, out, stages=_stage)
 
 
 def test_stages_report_their_progress(mapped_run):
@@ -67,6 +76,15 @@ def test_stages_report_their_progress(mapped_run):
     assert m["peak_rss_mb"] >= m["peak_rss_mb_before_outputs"] > 100
     # the run's own peak (reset when it started; a batch runs many in one process), on Linux
     assert m["peak_rss_scope"] == ("run" if sys.platform.startswith("linux") else "process")
+
+
+def test_final_pass_has_the_cores_to_itself(mapped_run):
+    """Frame prefetching and the rest of the run are over: the pass's compositor takes every core."""
+    from gsslam.mapping.keyframes import available_cores
+
+    _, m = mapped_run
+    assert IN_FINAL_PASS == {((threading.main_thread().name,), 1, available_cores())}
+    assert m["mapper"]["final_threads"] == available_cores()
 
 
 def test_mapped_run_writes_map_renders_and_metrics(mapped_run):

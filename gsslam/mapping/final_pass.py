@@ -4,19 +4,37 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import torch
 
-from gsslam.mapping.keyframes import torch_threads
+from gsslam.mapping.keyframes import end_threads, torch_threads
 from gsslam.mapping.levels import coarse_steps
+from gsslam.mapping.rasterize_cpu import compositor_threads
 from gsslam.mapping.state import MapState, refined_poses
 from gsslam.mapping.window import adam_steps, run_stats
 
 log = logging.getLogger(__name__)
 
 _ERROR_STATE = ("err_sum", "err_count", "max_radius")
+
+
+@contextmanager
+def end_of_run_threads(cfg) -> Iterator[int]:
+    """Threads of the work after the frames (this pass, the map's evaluation and panels); yields the
+    compositor's count.
+
+    Torch keeps ``num_threads`` (1): its thread pool synchronises around every small operation, and
+    with 2 threads on a loaded 2-core machine a map step ran 18x slower (SSIM's convolutions 23-27x;
+    docs/results.md, "Final pass threads, session 11"). The compositor's passes, milliseconds each,
+    run on ``final_num_threads`` row bands (0: every core the process may use; nothing else of the run
+    is busy then). Images are those of one band bit for bit; gradients differ by summation order.
+    """
+    threads = end_threads(cfg.final_num_threads)
+    with torch_threads(cfg.num_threads), compositor_threads(threads):
+        yield threads
 
 
 def epoch_picker(state: MapState, order: list[int]):
@@ -133,8 +151,8 @@ def finalize(
             progress(done, iters)
 
     log.info(
-        "final pass: %d steps over %d keyframes (%s)", iters, len(order),
-        "capped: worst keyframes first" if capped else "shuffled epochs",
+        "final pass: %d steps over %d keyframes (%s), the compositor on %d thread(s)", iters, len(order),
+        "capped: worst keyframes first" if capped else "shuffled epochs", end_threads(cfg.final_num_threads),
     )  # fmt: skip
     t0 = time.perf_counter()
     rounds = max(0, cfg.final_densify_rounds)
@@ -142,7 +160,7 @@ def finalize(
     densified = 0
     first = last = None
     coarse = coarse_steps(cfg.final_coarse_share, iters)  # the pass's first steps, across its rounds
-    with torch_threads(cfg.num_threads):
+    with end_of_run_threads(cfg) as threads:
         reset_error_state(state)
         for r in range(rounds + 1):
             n = int(bounds[r + 1] - bounds[r])
@@ -165,7 +183,7 @@ def finalize(
     counts = np.array(list(visits.values()))
     stats = run_stats(
         state, iters, t0, first, last, pruned=pruned, densified=densified, capped=capped, coarse=coarse,
-        uncapped_iterations=full, visits_min=int(counts.min()), visits_max=int(counts.max()),
+        uncapped_iterations=full, visits_min=int(counts.min()), visits_max=int(counts.max()), threads=threads,
     )  # fmt: skip
     log.info("final pass done: %.1f s, step PSNR %.2f -> %.2f dB", stats.get("seconds", 0.0),
              first or 0.0, last or 0.0)  # fmt: skip
@@ -190,7 +208,7 @@ def refine_joint(state: MapState, iterations: int | None = None) -> dict:
     before = refined_poses(state)
     pick = epoch_picker(state, order)
     t0 = time.perf_counter()
-    with torch_threads(cfg.num_threads):
+    with end_of_run_threads(cfg):
         reset_error_state(state)
         first, last = adam_steps(
             state, iters, pick, free, order, decay=0.1, lr_scale=0.1,

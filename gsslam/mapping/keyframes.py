@@ -7,6 +7,7 @@ scale, and an se(3) right-perturbation ``delta`` that pose refinement optimizes
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -158,3 +159,18 @@ def torch_threads(n: int) -> Iterator[None]:
     finally:
         if torch.get_num_threads() != before:
             torch.set_num_threads(before)
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask; ``os.cpu_count()`` where there is none)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def end_threads(n: int) -> int:
+    """Threads of the end-of-run passes (``mapper.final_num_threads``): ``n``, or every available core
+    for ``n <= 0``. Nothing else runs then (tracking, loops and frame prefetching are over), so the
+    threads do not compete with the run's own work as ``mapper.num_threads`` must during it."""
+    return n if n > 0 else available_cores()

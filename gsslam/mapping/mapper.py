@@ -286,13 +286,13 @@ class GaussianMapper:
     ) -> dict:
         """PSNR / SSIM of keyframes and held-out frames with a pose, at the mapper resolution and, with
         ``native``, also at the input's (``*_native``); see :func:`gsslam.mapping.outputs.evaluate_map`."""
-        with torch_threads(self.cfg.num_threads):
+        with final_pass.end_of_run_threads(self.cfg):
             intr = self.full_intrinsics if native else None
             return outputs.evaluate_map(self.map, frames, poses, intr, progress, native_only)
 
     def native_panel(self, frame: Frame, T_world_cam: np.ndarray, path: str | Path) -> Path:
         """``input | render | depth`` of ``frame`` at the input resolution (where the map is weak)."""
-        with torch_threads(self.cfg.num_threads):
+        with final_pass.end_of_run_threads(self.cfg):
             return outputs.native_panel(self.map, frame, T_world_cam, self.full_intrinsics, path)
 
     def save_ply(self, path: str | Path) -> int:

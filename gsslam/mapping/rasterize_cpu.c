@@ -179,6 +179,21 @@ static void *fill_band(void *arg) {
     return NULL;
 }
 
+/* First row of band t of `threads`: equal rows without offsets (the count pass), else about equal pairs
+ * (offsets[W * H + 1] from the counts), so that a band with the dense part of the view is not the one
+ * every other thread waits for. A band may be empty. */
+static int band_start(const int64_t *offsets, int W, int H, int t, int threads) {
+    if (t >= threads) return H;
+    if (!offsets) return (int)((int64_t)H * t / threads);
+    int64_t goal = offsets[(int64_t)W * H] / threads * t;
+    int lo = 0, hi = H; /* the first row whose pixels start at or after the goal */
+    while (lo < hi) {
+        int mid = lo + (hi - lo) / 2;
+        if (offsets[(int64_t)mid * W] >= goal) hi = mid; else lo = mid + 1;
+    }
+    return lo;
+}
+
 /* Run fn on `threads` bands of rows (threads <= MAX_THREADS), the last one on the calling thread. */
 static void run_bands(void *(*fn)(void *), pair_job *base, int threads) {
     pair_job jobs[MAX_THREADS];
@@ -189,8 +204,8 @@ static void run_bands(void *(*fn)(void *), pair_job *base, int threads) {
     int started = 0;
     for (int t = 0; t < threads; ++t) {
         jobs[t] = *base;
-        jobs[t].band0 = (int)((int64_t)base->H * t / threads);
-        jobs[t].band1 = (int)((int64_t)base->H * (t + 1) / threads) - 1;
+        jobs[t].band0 = band_start(base->offsets, base->W, base->H, t, threads);
+        jobs[t].band1 = band_start(base->offsets, base->W, base->H, t + 1, threads) - 1;
     }
     for (int t = 0; t < threads - 1; ++t)
         if (pthread_create(&tid[t], NULL, fn, &jobs[t]) == 0) started = t + 1; else break;
@@ -345,8 +360,8 @@ static int split(comp_job *base, comp_job *jobs, int threads) {
     if (threads > base->H) threads = base->H;
     for (int t = 0; t < threads; ++t) {
         jobs[t] = *base;
-        jobs[t].band0 = (int)((int64_t)base->H * t / threads);
-        jobs[t].band1 = (int)((int64_t)base->H * (t + 1) / threads) - 1;
+        jobs[t].band0 = band_start(base->offsets, base->W, base->H, t, threads);
+        jobs[t].band1 = band_start(base->offsets, base->W, base->H, t + 1, threads) - 1;
     }
     return threads;
 }

@@ -29,6 +29,8 @@ import logging
 import os
 import shutil
 import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -43,6 +45,25 @@ _VARIANTS = {torch.float32: "f32", torch.float64: "f64"}
 _lib: ctypes.CDLL | None = None
 _origin: str | None = None  # "installed" | "cache" | "built": where the loaded library came from
 _failure: str | None = None  # why the kernel is unavailable (set once, then never retried)
+_bands = 0  # row bands (threads) of the compositor's passes; 0: torch's thread count (compositor_threads)
+
+
+@contextmanager
+def compositor_threads(n: int) -> Iterator[None]:
+    """Composite with ``n`` threads (row bands) inside the block, whatever torch's own thread count
+    (``n <= 0``: torch's, the default). The passes are coarse (milliseconds each), unlike torch's
+    per-operation thread pool, so they can use cores that torch's small operations would only wait on."""
+    global _bands
+    before, _bands = _bands, max(0, int(n))
+    try:
+        yield
+    finally:
+        _bands = before
+
+
+def band_threads() -> int:
+    """Threads the compositor's passes run on now (see :func:`compositor_threads`)."""
+    return _bands if _bands > 0 else torch.get_num_threads()
 
 
 def _compiler() -> str | None:
@@ -179,7 +200,7 @@ class _CompositeCPU(torch.autograd.Function):
         rad = radii.to(torch.int64).contiguous()
         n, f = feat.shape
         P = width * height
-        threads = torch.get_num_threads()
+        threads = band_threads()
         order = torch.sort(depths.detach(), stable=True).indices.contiguous()
         counts = torch.empty(P, dtype=torch.int32)
         span_start = spans = None
@@ -275,7 +296,7 @@ class _CompositeCPU(torch.autograd.Function):
             _ptr(g_con),
             _ptr(g_op),
             _ptr(g_feat),
-            torch.get_num_threads(),
+            band_threads(),
         )
         if status != 0:
             raise MemoryError("the CPU rasterizer backward could not allocate its per-thread buffers")

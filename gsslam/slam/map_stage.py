@@ -163,7 +163,7 @@ class MapStage:
         self.seconds += stats.get("seconds", 0.0)
         self.window_seconds = window_s
         self.final_seconds = stats.get("seconds", 0.0)
-        keys = ("capped", "uncapped_iterations", "visits_min", "visits_max", "coarse")
+        keys = ("capped", "uncapped_iterations", "visits_min", "visits_max", "coarse", "threads")
         self.final_stats = {k: stats.get(k) for k in keys}
         self.final_iterations = stats.get("iterations", 0)
         if self.cfg.final_pose_iterations > 0:

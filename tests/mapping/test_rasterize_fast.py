@@ -148,3 +148,44 @@ def test_reused_spans_and_falloffs_give_the_plain_kernels_results_bit_for_bit(dt
     for a, b in zip(results[True], results[False]):
         assert float(b.abs().max()) > 0
         assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_compositor_threads_give_the_same_image_and_gradients_up_to_summation_order(dtype):
+    """``compositor_threads(n)`` runs the passes on n row bands whatever torch's thread count; bands hold
+    about equal pairs (here most of them in the lower half of the view). The image is bit for bit the
+    one-band image (each pixel is one band's); gradients are summed per band, then across bands."""
+    from gsslam.mapping.projection import project_gaussians
+    from gsslam.mapping.rasterize_cpu import band_threads, composite_cpu, compositor_threads
+
+    w, h = 64, 48
+    means, quats, scales, opacities, colors = random_scene(1500, seed=4, dtype=dtype)
+    T, K = small_pose(3, dtype=dtype), intrinsics(w, h, dtype=dtype)
+    with torch.no_grad():
+        p = project_gaussians(means, quats, scales * 0.5, T, K, w, h)
+    radii = torch.where(p.means2d[:, 1] > 0.4 * h, p.radii, p.radii * (torch.arange(len(p.radii)) % 4 == 0))
+    feat = torch.cat([colors, p.depths[:, None], p.normals], dim=-1)
+    g = torch.Generator().manual_seed(6)
+    g_feat = torch.rand(h, w, 7, generator=g, dtype=dtype)
+    g_alpha = torch.rand(h, w, generator=g, dtype=dtype)
+    results = {}
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for n in (1, 2, 3):
+            with compositor_threads(n):
+                assert band_threads() == n
+                leaves = (p.means2d, p.conics, opacities, feat)
+                ins = [t.detach().clone().requires_grad_(True) for t in leaves]
+                out, alpha = composite_cpu(*ins, p.depths, radii, w, h)
+                ((out * g_feat).sum() + (alpha * g_alpha).sum()).backward()
+            results[n] = [out.detach(), alpha.detach()] + [t.grad for t in ins]
+        assert band_threads() == 1  # torch's again outside the block
+    finally:
+        torch.set_num_threads(before)
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    for n in (2, 3):
+        assert torch.equal(results[n][0], results[1][0]) and torch.equal(results[n][1], results[1][1])
+        for a, b in zip(results[n][2:], results[1][2:]):
+            assert float(b.abs().max()) > 0
+            torch.testing.assert_close(a, b, rtol=tol, atol=tol * float(b.abs().max()))

@@ -1,0 +1,111 @@
+"""Measuring tool (docs/results.md, "RGB-D frames between keyframes and loops, session 11"), not a test.
+
+Reads ``nearkf_probe.py`` pickles and prints, per run: ATE SE(3) of all frames / keyframes / frames between
+(under the all-frame alignment, as the runner), the error of the frames between by their distance (in
+frames) to their reference keyframe, and the ATE of the frames posed other ways from the SAME run:
+
+- ``asis``: as written (``T_w_A T_A_f``, A the keyframe before);
+- ``interp``: interpolated in time between the corrected keyframes A and B (the one after);
+- ``anchorB``: ``T_w_B inv(T_A_B) T_A_f`` (B's own tracked pose against A closes the gap at B);
+- ``blend``: ``asis`` and ``anchorB`` interpolated by the time fraction u of f between A and B (the
+  library's ``slam/poses.py::blend_between``, ``pipeline.frame_pose_blend``);
+- ``blend_motion``: the same with u the fraction of the tracked path length A -> f -> B;
+- ``back``: ``T_w_B T_B_f`` (the frame tracked against the next keyframe; ``--back`` pickles);
+- ``fuse``: ``asis`` and ``back`` interpolated by u.
+
+    PYTHONPATH=. python3 tests/accuracy/nearkf_split.py RUN.pkl [...]
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import sys
+
+import numpy as np
+
+from gsslam.eval.ate import ate_from_pairs
+from gsslam.frontend.tracking import interpolate_pose
+from gsslam.geometry import invert_T
+from gsslam.slam.poses import blend_between
+
+
+def _neighbours(kf_sorted: list[int], f: int) -> tuple[int | None, int | None]:
+    k = int(np.searchsorted(kf_sorted, f))
+    a = kf_sorted[k - 1] if k > 0 else None
+    b = kf_sorted[k] if k < len(kf_sorted) else None
+    return a, b
+
+
+def variants(st: dict) -> dict[str, dict[int, np.ndarray]]:
+    kfp, fr, ts, rel, trk = st["keyframes"], st["frames"], st["ts"], st["relative"], st["tracked"]
+    kfs = sorted(kfp)
+    out = {k: dict(fr) for k in ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse")}
+    kf_rel = {b: trk[b] for b in kfs if b in trk}
+    lib = blend_between(kfp, rel, kf_rel, ts)
+    out["blend"].update({f: T for f, T in lib.items() if f in fr})
+    for f, (ref, T_a_f) in rel.items():
+        a, b = _neighbours(kfs, f)
+        if f not in fr or a != ref or b is None or b not in trk or trk[b][0] != a:
+            continue
+        u = (ts[f] - ts[a]) / (ts[b] - ts[a])
+        P_a = kfp[a] @ T_a_f
+        out["interp"][f] = interpolate_pose(kfp[a], kfp[b], u)
+        P_b = kfp[b] @ invert_T(trk[b][1]) @ T_a_f
+        out["anchorB"][f] = P_b
+        T_b_f = invert_T(trk[b][1]) @ T_a_f
+        d_a, d_b = np.linalg.norm(T_a_f[:3, 3]), np.linalg.norm(T_b_f[:3, 3])
+        out["blend_motion"][f] = interpolate_pose(P_a, P_b, d_a / (d_a + d_b) if d_a + d_b > 0 else u)
+        if f in st.get("back_tracked", {}) and st["back_tracked"][f][0] == b:
+            P_back = kfp[b] @ st["back_tracked"][f][1]
+            out["back"][f] = P_back
+            out["fuse"][f] = interpolate_pose(P_a, P_back, u)
+    return out
+
+
+def report(path: str) -> dict:
+    st = pickle.load(open(path, "rb"))
+    gt_t, gt_T, ts = st["gt_t"], st["gt_T"], st["ts"]
+    kfs = sorted(st["keyframes"])
+
+    def gt_of(i):
+        j = int(np.argmin(np.abs(gt_t - ts[i])))
+        return gt_T[j] if abs(gt_t[j] - ts[i]) < 0.02 else None
+
+    res = {"run": path.split("/")[-1], "loops": st["loops_metrics"].get("in_graph")}
+    for name, poses in variants(st).items():
+        idx = [i for i in sorted(poses) if gt_of(i) is not None]
+        G = np.array([gt_of(i) for i in idx])
+        E = np.array([poses[i] for i in idx])
+        r = ate_from_pairs(G[:, :3, 3], E[:, :3, 3], "se3")
+        e = np.linalg.norm(r.alignment.apply_positions(E[:, :3, 3]) - G[:, :3, 3], axis=1)
+        iskf = np.array([i in st["keyframes"] for i in idx])
+        rms = lambda x: round(100 * float(np.sqrt(np.mean(x**2))), 3) if len(x) else None  # noqa: E731
+        res[name] = {"all": round(100 * r.stats.rmse, 3), "kf": rms(e[iskf]), "between": rms(e[~iskf])}
+        if name == "asis":  # error by distance (frames) to the reference keyframe, and to the next one
+            order = {i: n for n, i in enumerate(idx)}
+            by_d, by_rel = {}, {}
+            for n, i in enumerate(idx):
+                if iskf[n] or i not in st["relative"]:
+                    continue
+                a, b = _neighbours(kfs, i)
+                d = order[i] - order[a] if a in order else -1
+                d_b = order[b] - order[i] if b in order else -1
+                by_d.setdefault(f"{d}/{d_b}", []).append(e[n])
+                ref, T = st["relative"][i]
+                if gt_of(ref) is not None:
+                    D = invert_T(invert_T(gt_of(ref)) @ gt_of(i)) @ T
+                    by_rel.setdefault(d, []).append(np.linalg.norm(D[:3, 3]))
+            res["err_by_dist_prev/next"] = {k: (len(v), rms(np.array(v))) for k, v in sorted(by_d.items())}
+            res["rel_err_by_dist"] = {k: (len(v), rms(np.array(v))) for k, v in sorted(by_rel.items())}
+    return res
+
+
+def main(argv: list[str]) -> int:
+    for p in argv:
+        print(json.dumps(report(p)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

@@ -11,9 +11,15 @@ frames) to their reference keyframe, and the ATE of the frames posed other ways 
   library's ``slam/poses.py::blend_between``, ``pipeline.frame_pose_blend``);
 - ``blend_motion``: the same with u the fraction of the tracked path length A -> f -> B;
 - ``back``: ``T_w_B T_B_f`` (the frame tracked against the next keyframe; ``--back`` pickles);
-- ``fuse``: ``asis`` and ``back`` interpolated by u.
+- ``fuse``: ``asis`` and ``back`` interpolated by u;
+- ``true_rel`` / ``true_kf``: what-ifs, the keyframe's estimate with the TRUE ``T_A_f`` / the true keyframe
+  with the estimated ``T_A_f`` (as ``frame_split.py``);
 
-    PYTHONPATH=. python3 tests/accuracy/nearkf_split.py RUN.pkl [...]
+and the all-frame ATE Sim(3) with its scale (``asis``).
+
+    PYTHONPATH=. python3 tests/accuracy/nearkf_split.py [--table] RUN.pkl [...]
+
+``--table``: one markdown row per run instead of the JSON line.
 """
 
 from __future__ import annotations
@@ -37,15 +43,19 @@ def _neighbours(kf_sorted: list[int], f: int) -> tuple[int | None, int | None]:
     return a, b
 
 
-def variants(st: dict) -> dict[str, dict[int, np.ndarray]]:
+def variants(st: dict, gt_of, T_est_gt: np.ndarray) -> dict[str, dict[int, np.ndarray]]:
     kfp, fr, ts, rel, trk = st["keyframes"], st["frames"], st["ts"], st["relative"], st["tracked"]
     kfs = sorted(kfp)
-    out = {k: dict(fr) for k in ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse")}
+    names = ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse", "true_rel", "true_kf")
+    out = {k: dict(fr) for k in names}
     kf_rel = {b: trk[b] for b in kfs if b in trk}
     lib = blend_between(kfp, rel, kf_rel, ts)
     out["blend"].update({f: T for f, T in lib.items() if f in fr})
     for f, (ref, T_a_f) in rel.items():
         a, b = _neighbours(kfs, f)
+        if f in fr and ref in kfp and gt_of(ref) is not None and gt_of(f) is not None:
+            out["true_rel"][f] = kfp[ref] @ invert_T(gt_of(ref)) @ gt_of(f)
+            out["true_kf"][f] = T_est_gt @ gt_of(ref) @ T_a_f  # the true keyframe in the estimate's frame
         if f not in fr or a != ref or b is None or b not in trk or trk[b][0] != a:
             continue
         u = (ts[f] - ts[a]) / (ts[b] - ts[a])
@@ -73,7 +83,9 @@ def report(path: str) -> dict:
         return gt_T[j] if abs(gt_t[j] - ts[i]) < 0.02 else None
 
     res = {"run": path.split("/")[-1], "loops": st["loops_metrics"].get("in_graph")}
-    for name, poses in variants(st).items():
+    idx = [i for i in sorted(st["frames"]) if gt_of(i) is not None]
+    al = ate_from_pairs(np.array([gt_of(i)[:3, 3] for i in idx]), np.array([st["frames"][i][:3, 3] for i in idx]), "se3")
+    for name, poses in variants(st, gt_of, invert_T(al.alignment.matrix)).items():
         idx = [i for i in sorted(poses) if gt_of(i) is not None]
         G = np.array([gt_of(i) for i in idx])
         E = np.array([poses[i] for i in idx])
@@ -82,6 +94,9 @@ def report(path: str) -> dict:
         iskf = np.array([i in st["keyframes"] for i in idx])
         rms = lambda x: round(100 * float(np.sqrt(np.mean(x**2))), 3) if len(x) else None  # noqa: E731
         res[name] = {"all": round(100 * r.stats.rmse, 3), "kf": rms(e[iskf]), "between": rms(e[~iskf])}
+        if name == "asis":
+            r3 = ate_from_pairs(G[:, :3, 3], E[:, :3, 3], "sim3")
+            res["asis_sim3"] = {"all": round(100 * r3.stats.rmse, 3), "scale": round(float(r3.alignment.scale), 4)}
         if name == "asis":  # error by distance (frames) to the reference keyframe, and to the next one
             order = {i: n for n, i in enumerate(idx)}
             by_d, by_rel = {}, {}
@@ -101,9 +116,25 @@ def report(path: str) -> dict:
     return res
 
 
+def _table_row(r: dict) -> str:
+    cells = [r["run"].removesuffix(".pkl").removesuffix("_back"), str(r["loops"])]
+    cells += [f'{r["asis"]["all"]:.3f}', f'{r["asis"]["kf"]:.3f}', f'{r["asis"]["between"]:.3f}']
+    cells += [f'{r["asis_sim3"]["all"]:.3f} ({r["asis_sim3"]["scale"]:.4f})', f'{r["true_rel"]["all"]:.3f}']
+    cells += [f'{r["interp"]["all"]:.3f}', f'{r["fuse"]["all"]:.3f}']
+    d = 100 * (r["blend"]["all"] / r["asis"]["all"] - 1)
+    cells += [f'**{r["blend"]["all"]:.3f}** ({d:+.1f} %)', f'{r["blend"]["between"]:.3f}']
+    return "| " + " | ".join(cells) + " |"
+
+
 def main(argv: list[str]) -> int:
-    for p in argv:
-        print(json.dumps(report(p)))
+    table = "--table" in argv
+    if table:
+        print("| run | loops in graph | ATE all | keyframes | between | Sim(3) all (scale) | with true T_A_f "
+              "| interp | fuse (back track) | blend all | blend between |")
+        print("|---" * 11 + "|")
+    for p in (a for a in argv if a != "--table"):
+        r = report(p)
+        print(_table_row(r) if table else json.dumps(r))
     return 0
 
 

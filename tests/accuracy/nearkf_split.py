@@ -11,7 +11,8 @@ frames) to their reference keyframe, and the ATE of the frames posed other ways 
   library's ``slam/poses.py::blend_between``, ``pipeline.frame_pose_blend``);
 - ``blend_motion``: the same with u the fraction of the tracked path length A -> f -> B;
 - ``back``: ``T_w_B T_B_f`` (the frame tracked against the next keyframe; ``--back`` pickles);
-- ``fuse``: ``asis`` and ``back`` interpolated by u;
+- ``fuse``: ``asis`` and ``back`` interpolated by u; ``fuse3``: ``asis`` and the mean of ``anchorB`` and
+  ``back`` interpolated by u;
 - ``true_rel`` / ``true_kf``: what-ifs, the keyframe's estimate with the TRUE ``T_A_f`` / the true keyframe
   with the estimated ``T_A_f`` (as ``frame_split.py``);
 
@@ -47,7 +48,7 @@ def _neighbours(kf_sorted: list[int], f: int) -> tuple[int | None, int | None]:
 def variants(st: dict, gt_of, T_est_gt: np.ndarray) -> dict[str, dict[int, np.ndarray]]:
     kfp, fr, ts, rel, trk = st["keyframes"], st["frames"], st["ts"], st["relative"], st["tracked"]
     kfs = sorted(kfp)
-    names = ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse", "true_rel", "true_kf")
+    names = ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse", "fuse3", "true_rel", "true_kf")
     base = dict(kfp)  # as slam/poses.frame_poses before its outlier check
     base.update({f: kfp[a] @ T for f, (a, T) in rel.items() if a in kfp})
     out = {k: dict(base) for k in names}
@@ -72,6 +73,7 @@ def variants(st: dict, gt_of, T_est_gt: np.ndarray) -> dict[str, dict[int, np.nd
             P_back = kfp[b] @ st["back_tracked"][f][1]
             out["back"][f] = P_back
             out["fuse"][f] = interpolate_pose(P_a, P_back, u)
+            out["fuse3"][f] = interpolate_pose(P_a, interpolate_pose(P_b, P_back, 0.5), u)
     for name, poses in out.items():  # then the outlier check of frame_poses (its defaults)
         bad = find_pose_outliers(poses, set(kfp), ts, 0.02, 3.0)
         for f in bad:

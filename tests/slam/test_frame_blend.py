@@ -66,6 +66,23 @@ def test_exact_tracks_are_unchanged_and_frames_without_a_tracked_next_keyframe_a
     assert len(skipped) == 3 and not skipped & set(out) and len(out) == len(relative) - 3
 
 
+def test_a_failed_keyframe_track_is_not_blended_in():
+    """B's track 5 cm off the graph's A -> B (a failed track, as one on teddy200_s3_blur_rgbd): the frames
+    before B keep their pose from A; a 1 cm disagreement is blended in (gate 2 cm / 2 deg)."""
+    T, ts, kfs = _scene(4)
+    relative, kf_rel = _tracks(T, kfs, None)
+    kf_poses = {k: T[k] for k in kfs}
+    a, b = kfs[2], kfs[3]
+    kf_rel[b] = (a, kf_rel[b][1] @ make_T(np.eye(3), [0.05, 0.0, 0.0]))
+    out = blend_between(kf_poses, relative, kf_rel, ts)
+    between = [f for f, (r, _T) in relative.items() if r == a]
+    assert len(between) == 3 and not set(between) & set(out) and len(out) == len(relative) - 3
+    kf_rel[b] = (a, kf_rel[b][1] @ make_T(np.eye(3), [-0.04, 0.0, 0.0]))  # now 1 cm off
+    out = blend_between(kf_poses, relative, kf_rel, ts)
+    assert set(between) <= set(out)
+    assert not np.allclose(out[between[-1]], T[between[-1]], atol=1e-4)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_keyframe_correction_reaches_the_frames_between_in_proportion(seed):
     """Tracking drifts 8 mm / 0.6 deg over each keyframe interval; the graph (loops) put the keyframes at

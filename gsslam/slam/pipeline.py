@@ -84,7 +84,7 @@ class Pipeline:
         self.keyframe_order: list[int] = []
         self.pending: list[tuple[FrameMatches, int]] = []  # (matches to ref keyframe, chain id), mono
         self.relative: dict[int, tuple[int, np.ndarray]] = {}  # frame -> (ref keyframe, T_ref_cur), solved
-        self.keyframe_relative: dict[int, tuple[int, np.ndarray]] = {}  # RGB-D keyframe -> (the one before, T)
+        self.keyframe_relative: dict[int, tuple[int, np.ndarray]] = {}  # RGB-D keyframe -> (prev kf, T)
         self.window: list[Frame] = []  # keyframes of the submap being built; [0] is shared
         self.prev_frames: list[Frame] = []  # keyframes of the last encoded submap
         self.frames_since_kf = 0

@@ -48,7 +48,8 @@ def _neighbours(kf_sorted: list[int], f: int) -> tuple[int | None, int | None]:
 def variants(st: dict, gt_of, T_est_gt: np.ndarray) -> dict[str, dict[int, np.ndarray]]:
     kfp, fr, ts, rel, trk = st["keyframes"], st["frames"], st["ts"], st["relative"], st["tracked"]
     kfs = sorted(kfp)
-    names = ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse", "fuse3", "true_rel", "true_kf")
+    names = ("asis", "interp", "anchorB", "blend", "blend_motion", "back", "fuse", "fuse3")
+    names += ("true_rel", "true_kf")
     base = dict(kfp)  # as slam/poses.frame_poses before its outlier check
     base.update({f: kfp[a] @ T for f, (a, T) in rel.items() if a in kfp})
     out = {k: dict(base) for k in names}
@@ -94,7 +95,8 @@ def report(path: str) -> dict:
 
     res = {"run": path.split("/")[-1], "loops": st["loops_metrics"].get("in_graph")}
     idx = [i for i in sorted(st["frames"]) if gt_of(i) is not None]
-    al = ate_from_pairs(np.array([gt_of(i)[:3, 3] for i in idx]), np.array([st["frames"][i][:3, 3] for i in idx]), "se3")
+    G0 = np.array([gt_of(i)[:3, 3] for i in idx])
+    al = ate_from_pairs(G0, np.array([st["frames"][i][:3, 3] for i in idx]), "se3")
     vs = variants(st, gt_of, invert_T(al.alignment.matrix))
     res["asis_reproduced"] = all(np.allclose(vs["asis"][f], T) for f, T in st["frames"].items())
     for name, poses in vs.items():
@@ -108,7 +110,8 @@ def report(path: str) -> dict:
         res[name] = {"all": round(100 * r.stats.rmse, 3), "kf": rms(e[iskf]), "between": rms(e[~iskf])}
         if name == "asis":
             r3 = ate_from_pairs(G[:, :3, 3], E[:, :3, 3], "sim3")
-            res["asis_sim3"] = {"all": round(100 * r3.stats.rmse, 3), "scale": round(float(r3.alignment.scale), 4)}
+            scale = round(float(r3.alignment.scale), 4)
+            res["asis_sim3"] = {"all": round(100 * r3.stats.rmse, 3), "scale": scale}
         if name == "asis":  # error by distance (frames) to the reference keyframe, and to the next one
             order = {i: n for n, i in enumerate(idx)}
             by_d, by_rel = {}, {}
@@ -130,19 +133,21 @@ def report(path: str) -> dict:
 
 def _table_row(r: dict) -> str:
     cells = [r["run"].removesuffix(".pkl").removesuffix("_back"), str(r["loops"])]
-    cells += [f'{r["asis"]["all"]:.3f}', f'{r["asis"]["kf"]:.3f}', f'{r["asis"]["between"]:.3f}']
-    cells += [f'{r["asis_sim3"]["all"]:.3f} ({r["asis_sim3"]["scale"]:.4f})', f'{r["true_rel"]["all"]:.3f}']
-    cells += [f'{r["interp"]["all"]:.3f}', f'{r["fuse"]["all"]:.3f}']
+    cells += [f"{r['asis']['all']:.3f}", f"{r['asis']['kf']:.3f}", f"{r['asis']['between']:.3f}"]
+    cells += [f"{r['asis_sim3']['all']:.3f} ({r['asis_sim3']['scale']:.4f})", f"{r['true_rel']['all']:.3f}"]
+    cells += [f"{r['interp']['all']:.3f}", f"{r['fuse']['all']:.3f}"]
     d = 100 * (r["blend"]["all"] / r["asis"]["all"] - 1)
-    cells += [f'**{r["blend"]["all"]:.3f}** ({d:+.1f} %)', f'{r["blend"]["between"]:.3f}']
+    cells += [f"**{r['blend']['all']:.3f}** ({d:+.1f} %)", f"{r['blend']['between']:.3f}"]
     return "| " + " | ".join(cells) + " |"
 
 
 def main(argv: list[str]) -> int:
     table = "--table" in argv
     if table:
-        print("| run | loops in graph | ATE all | keyframes | between | Sim(3) all (scale) | with true T_A_f "
-              "| interp | fuse (back track) | blend all | blend between |")
+        print(
+            "| run | loops in graph | ATE all | keyframes | between | Sim(3) all (scale) | with true T_A_f "
+            "| interp | fuse (back track) | blend all | blend between |"
+        )
         print("|---" * 11 + "|")
     for p in (a for a in argv if a != "--table"):
         r = report(p)

@@ -234,6 +234,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "pipeline.max_time_gap_s": POS,
     "pipeline.pose_outlier_max_dev_m": NONNEG,
     "pipeline.pose_outlier_max_dev_deg": NONNEG,
+    "pipeline.frame_pose_blend_gate_m": NONNEG,
+    "pipeline.frame_pose_blend_gate_deg": NONNEG,
     "run.checkpoint_every": _ge(0),
     "run.native_eval_keyframes": _ge(0),
     "run.native_eval_held_out": _ge(0),

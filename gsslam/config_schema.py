@@ -263,6 +263,9 @@ class PipelineConfig:
     track_icp_promote_first: bool = True  # RGB-D ICP fallback only where promoting the last tracked frame to a keyframe and retrying PnP cannot help (the retry, or no frame to promote): the keyframe set stays that of PnP tracking (false: ICP at once, session 7: +15 % on teddy200_fbf_7scenes loops on, docs/results.md)
     track_icp_min_fitness: float = 0.4  # RGB-D ICP fallback: ICP matched points / the frame's valid depth points (finest level) below this: failed (teddy, right poses: 0.49-0.63)
     track_joint_pose: bool = True  # RGB-D: each tracked frame's PnP pose re-solved from flow (PnP inliers) and depth (point-to-plane against its keyframe) jointly, as the keyframe poses (frontend/rgbd_tracking.py; docs/results.md, session 9)
+    frame_pose_blend: bool = False  # RGB-D: a non-keyframe between keyframes A and B posed from both: T_w_A T_A_f and T_w_B inv(T_A_B) T_A_f (T_A_B: B tracked against A before it became a keyframe) blended by its time fraction between them, so graph corrections between A and B reach it in proportion (slam/poses.py::blend_between; docs/results.md, session 11)
+    frame_pose_blend_gate_m: float = 0.02  # frame_pose_blend: an interval whose B track disagrees with the graph's A -> B by more than this is not blended (a failed track, not a correction)
+    frame_pose_blend_gate_deg: float = 2.0  # the same for the rotation
 
 
 @dataclass(frozen=True)

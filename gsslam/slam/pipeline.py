@@ -84,6 +84,7 @@ class Pipeline:
         self.keyframe_order: list[int] = []
         self.pending: list[tuple[FrameMatches, int]] = []  # (matches to ref keyframe, chain id), mono
         self.relative: dict[int, tuple[int, np.ndarray]] = {}  # frame -> (ref keyframe, T_ref_cur), solved
+        self.keyframe_relative: dict[int, tuple[int, np.ndarray]] = {}  # RGB-D keyframe -> (prev kf, T)
         self.window: list[Frame] = []  # keyframes of the submap being built; [0] is shared
         self.prev_frames: list[Frame] = []  # keyframes of the last encoded submap
         self.frames_since_kf = 0
@@ -171,6 +172,8 @@ class Pipeline:
         self.frames_since_kf += 1
         pose = self._remember(frame.index, tracked_pose(self, matches, T_ref_cur))
         if self.selector.is_keyframe(flow, self.frames_since_kf):
+            if T_ref_cur is not None:  # its own track (poses.blend_between)
+                self.keyframe_relative[frame.index] = (matches.ref_index, T_ref_cur)
             self._add_keyframe(frame)
             if frame.index in self.keyframes:  # its submap was just encoded: the graph's pose
                 pose = self._remember(frame.index, pose_now(self, frame.index))
@@ -228,8 +231,10 @@ class Pipeline:
         self.last_good = None
 
     def _promote(self, frame: Frame) -> None:
-        """Make an already tracked non-keyframe a keyframe (its tracked pose is dropped)."""
-        self.relative.pop(frame.index, None)
+        """Make an already tracked non-keyframe a keyframe (its tracked pose is kept as a keyframe's)."""
+        rel = self.relative.pop(frame.index, None)
+        if rel is not None:
+            self.keyframe_relative[frame.index] = rel
         self.pending = [(m, c) for m, c in self.pending if m.cur_index != frame.index]
         self.events.append(Event(frame.index, "promoted", "keyframe inserted after a tracking failure"))
         self._add_keyframe(frame)

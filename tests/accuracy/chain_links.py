@@ -39,10 +39,18 @@ import numpy as np
 
 OUT = os.environ.get("CHAIN_LINKS_OUT", "/tmp/chain_links")
 BLUR = {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
-TEDDY = "../shared/data/rgbd_dataset_freiburg3_teddy"
+DATA = os.environ.get("GSSLAM_DATA", "../shared/data")
+TEDDY = f"{DATA}/rgbd_dataset_freiburg3_teddy"
 FBF = dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)
 ROWS = {  # the tracking suite's rows (gsslam/run/suites/tracking.yaml): (dataset, path, kwargs, frames)
     "s2blur": ("playback", TEDDY, dict(base="tum", pattern="fbfbf", stride=2, degrade=BLUR), 300),
+    "s2blur7m": (  # teddy200_s2_blur_7scenes_mono
+        "playback",
+        TEDDY,
+        dict(base="tum", pattern="fbfbf", stride=2, degrade=BLUR,
+             misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth")),
+        300,
+    ),
     "s3blur": ("playback", TEDDY, dict(base="tum", pattern="fbfbfbf", stride=3, degrade=BLUR), 300),
     "fbf": ("playback", TEDDY, FBF, None),
     "teddy200": ("tum", TEDDY, dict(with_depth=False), None),  # as the runner opens a mono TUM row
@@ -52,8 +60,8 @@ ROWS = {  # the tracking suite's rows (gsslam/run/suites/tracking.yaml): (datase
         dict(n_frames=800, width=320, height=240, trajectory="loop", seed=5),
         None,
     ),
-    "kitti01": ("kitti", "../shared/data/kitti_odometry", dict(sequence="01"), None),
-    "kitti06": ("kitti", "../shared/data/kitti_odometry", dict(sequence="06"), None),
+    "kitti01": ("kitti", f"{DATA}/kitti_odometry", dict(sequence="01"), None),
+    "kitti06": ("kitti", f"{DATA}/kitti_odometry", dict(sequence="06"), None),
 }
 
 
@@ -85,9 +93,11 @@ def run(a) -> None:
     ch = pipe.chains[0]
     st = {"seq": a.seq, "loops": a.loops, "set": a.overrides, "chains": len(pipe.chains)}
     st["replay"] = [
-        (op[0], op[1], to_matrix(op[2])) if op[0] == "value" else op for op in ch.graph.backend.replay_log()
+        (op[0], op[1], to_matrix(op[2])) if op[0] == "value" and not isinstance(op[2], np.ndarray) else op
+        for op in ch.graph.backend.replay_log()
     ]
     pipe.finish()
+    st["stretch"] = ch.graph.submap_stretches() if hasattr(ch.graph, "submap_stretches") else None
     st["kf_after"] = pipe.keyframe_poses()
     st["fr_after"] = pipe.frame_poses()
     st["ts"], st["gt"] = pipe.timestamps, ds.ground_truth()
@@ -368,6 +378,49 @@ def show(a) -> None:
             )
 
 
+def world_scales(st) -> np.ndarray:
+    """Per submap: least-squares ratio of its keyframes' final world translations (from the submap's
+    first keyframe, as the run output them) to the ground truth's; NaN without ground truth."""
+    P = st["kf_after"]
+    out = []
+    for fi in st["frame_indices"]:
+        pairs = [(P[f], gt_pose(st, f)) for f in fi if f in P]
+        pairs = [(a, b) for a, b in pairs if b is not None]
+        if len(pairs) < 3:
+            out.append(float("nan"))
+            continue
+        (A0, G0), num, den = pairs[0], 0.0, 0.0
+        for A, G in pairs[1:]:
+            ta, tg = A[:3, 3] - A0[:3, 3], G[:3, 3] - G0[:3, 3]
+            num += np.linalg.norm(ta) * np.linalg.norm(tg)
+            den += np.linalg.norm(tg) ** 2
+        out.append(num / den if den > 0 else float("nan"))
+    return np.array(out)
+
+
+def spread(a) -> None:
+    """All-frame and keyframe ATE (Sim(3), cm) and the spread of the submaps' world translation scale."""
+    from gsslam.eval.ate import compute_ate
+    from gsslam.types import Trajectory
+
+    for path in a.pkls:
+        with open(path, "rb") as fh:
+            st = pickle.load(fh)
+        fr = st["fr_after"][0] if isinstance(st["fr_after"], tuple) else st["fr_after"]
+        ate = {}
+        for name, P in (("all", fr), ("kf", st["kf_after"])):
+            ks = sorted(P)
+            tr = Trajectory(np.array([st["ts"][k] for k in ks]), np.stack([P[k] for k in ks]))
+            ate[name] = 100 * compute_ate(st["gt"], tr, align="sim3")[0].stats.rmse
+        w = np.log(world_scales(st))
+        w = w[np.isfinite(w)]
+        t = st.get("stretch")
+        ts = "" if t is None or not np.any(t) else f"; stretch std {np.std(t):.4f} max |.| {np.abs(t).max():.3f}"
+        print(f"{Path(path).stem:24s} submaps {len(st['frame_indices']):3d} ATE all {ate['all']:.3f} kf "
+              f"{ate['kf']:.3f} cm; world translation scale std log {w.std():.4f} (|d| mean "
+              f"{np.abs(np.diff(w)).mean():.4f}){ts}")  # fmt: skip
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -392,9 +445,11 @@ def main(argv=None) -> int:
             "chain+gtlink+gtdir",
         ],
     )
+    sp = sub.add_parser("spread")
+    sp.add_argument("pkls", nargs="+")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
-    run(a) if a.cmd == "run" else show(a)
+    {"run": run, "show": show, "spread": spread}[a.cmd](a)
     return 0
 
 

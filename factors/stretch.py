@@ -15,6 +15,9 @@ extra variable (their residuals are those of :mod:`factors.flow`, :mod:`factors.
 - ``make_stretched_point_factor(a, b, ta, P_a, o_a, X_b, sigma)``: ``X_a = P_a + exp(ta) o_a``
   (adjacency: ``P_a = R_Z X``, ``o_a = t_Z``, the shared frame's camera in submap a);
 - ``make_stretched_alignment_factor(a, b, ta, Z, ...)``: ``t_Z`` stretched by ``ta``;
+- ``make_stretched_ray_point_factor(a, b, ta, tb, P_a, o_a, P_b, o_b, ...)``: mono loop points
+  (:mod:`factors.loop_rays`), ``X = P + exp(t) o`` with ``o`` the local translation of the keyframe
+  that saw each point; the rays ``u_k`` (and so ``W_k``) are fixed at the unstretched points;
 - ``make_stretch_prior_factor(t, sigma)``: ``r = sigma_t / sigma`` (prior mean 0).
 
 Jacobian in ``sigma`` (exact, no chart: the variable is a vector): a right translation perturbation
@@ -32,6 +35,7 @@ import numpy as np
 from ._lie import check_group, check_positive, check_shape, fill, pose_sigmas, read_transform
 from .errors import FactorInputError
 from .flow import flow_residual, mixture_weights
+from .loop_rays import make_ray_point_factor, ray_point_residual, ray_whitening
 from .points import checked_point_pair, point_residual
 from .submap_alignment import alignment_residual
 
@@ -187,8 +191,49 @@ def make_stretched_alignment_factor(
     return gtsam.CustomFactor(noise, [key_a, key_b, key_ta], error)
 
 
+def make_stretched_ray_point_factor(
+    key_a: int,
+    key_b: int,
+    key_ta: int,
+    key_tb: int,
+    P_a: np.ndarray,  # [N, 3] submap-a local points less their keyframe's translation
+    o_a: np.ndarray,  # [N, 3] that (unstretched) translation
+    P_b: np.ndarray,  # [N, 3] the same for submap b
+    o_b: np.ndarray,  # [N, 3]
+    sigma_ray: float | np.ndarray,
+    sigma_perp: float | np.ndarray,
+    dcs_phi: float = 0.0,
+) -> gtsam.CustomFactor:
+    """The ray-point loop factor (:mod:`factors.loop_rays`) with both submaps' points stretched; 3N rows."""
+    o_a, o_b = check_shape("o_a", o_a, (None, 3)), check_shape("o_b", o_b, (len(o_a), 3))
+    X_a, X_b = np.asarray(P_a, dtype=np.float64) + o_a, np.asarray(P_b, dtype=np.float64) + o_b
+    plain = make_ray_point_factor(key_a, key_b, X_a, X_b, sigma_ray, sigma_perp, dcs_phi)  # validates
+    _distinct(key_a, key_b, key_ta, key_tb)
+    n = len(X_a)
+    sr = np.broadcast_to(np.asarray(sigma_ray, dtype=np.float64), (n,))
+    sp = np.broadcast_to(np.asarray(sigma_perp, dtype=np.float64), (n,))
+    W = ray_whitening(X_a, sr, sp)  # rays fixed at the unstretched points
+    P_a, P_b = X_a - o_a, X_b - o_b
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        ka, kb, kta, ktb = this.keys()
+        oa, ob = np.exp(read_stretch(values, kta)) * o_a, np.exp(read_stretch(values, ktb)) * o_b
+        r, JA, JB = ray_point_residual(
+            read_transform(values, ka, _GROUP), read_transform(values, kb, _GROUP), P_a + oa, P_b + ob, W,
+            H is not None,
+        )  # fmt: skip
+        if H is not None:
+            H[0], H[1] = JA, JB
+            H[2] = np.einsum("nij,nj->ni", JA.reshape(n, 3, 7)[:, :, 3:6], oa).reshape(-1, 1)
+            H[3] = np.einsum("nij,nj->ni", JB.reshape(n, 3, 7)[:, :, 3:6], ob).reshape(-1, 1)
+        return r
+
+    return gtsam.CustomFactor(plain.noiseModel(), [key_a, key_b, key_ta, key_tb], error)
+
+
 __all__ = [
     "make_stretch_prior_factor",
+    "make_stretched_ray_point_factor",
     "make_stretched_alignment_factor",
     "make_stretched_flow_factor",
     "make_stretched_point_factor",

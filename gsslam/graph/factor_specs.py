@@ -34,6 +34,7 @@ from gsslam.factors.stretch import (
     make_stretched_alignment_factor,
     make_stretched_flow_factor,
     make_stretched_point_factor,
+    make_stretched_ray_point_factor,
 )
 
 FactorSpec = tuple[str, tuple, dict]  # (kind, positional args, keyword args), plain data only
@@ -66,6 +67,7 @@ MAKERS = {
     "stretched_alignment": make_stretched_alignment_factor,
     "stretched_point": make_stretched_point_factor,
     "stretched_flow": make_stretched_flow_factor,
+    "stretched_ray_point": make_stretched_ray_point_factor,
 }
 
 

@@ -9,9 +9,11 @@ prior mean 0 and std ``graph.mono_stretch_sigma``) that scales its local keyfram
 
 The factors that read a local translation carry the stretch of its submap
 (:mod:`gsslam.factors.stretch`): the rigid alignment (frame K of submap i-1: ``t{i-1}``), the adjacency
-points of the shared frame (their offset is that frame's camera in submap i-1) and the cross-submap
-flow factors (``L_a``, ``L_b``). Not stretched (they stay on ``S(i)`` with the unstretched local pose):
-loop points (their keyframe is not kept), map registrations and keyframe pose priors. The scale factor
+points of the shared frame (their offset is that frame's camera in submap i-1), the cross-submap
+flow factors (``L_a``, ``L_b``) and the mono ray-point loops (each point's offset is the camera of the
+keyframe it was seen in). Not stretched (they stay on ``S(i)`` with the unstretched local pose):
+map registrations, keyframe pose priors and loops without their points' keyframes (mono ray-point
+loops carry them: ``LoopConstraint.view_i`` / ``view_m``). The scale factor
 compares depths only. A keyframe's pose (and so every frame's, through its keyframe) is read with the
 stretch. RGB-D graphs never get the variable.
 """
@@ -59,6 +61,15 @@ def flow_spec(ia: int, ib: int, uv_src, depth_src, uv_tgt, K, weight, L_a, L_b, 
     return spec(
         "stretched_flow", submap_key(ia), submap_key(ib), stretch_key(ia), stretch_key(ib),
         uv_src, depth_src, uv_tgt, K, weight=weight, L_a=L_a, L_b=L_b, **kwargs,
+    )  # fmt: skip
+
+
+def ray_spec(i: int, m: int, X_i, o_i, X_m, o_m, sigma_ray, sigma_perp, dcs_phi: float) -> FactorSpec:
+    """A mono loop (ray-point factor) with both submaps' points on their stretches: ``X`` [N, 3] local
+    points, ``o`` [N, 3] the local translation of the keyframe each was seen in."""
+    return spec(
+        "stretched_ray_point", submap_key(i), submap_key(m), stretch_key(i), stretch_key(m),
+        X_i - o_i, o_i, X_m - o_m, o_m, sigma_ray, sigma_perp, dcs_phi=dcs_phi,
     )  # fmt: skip
 
 

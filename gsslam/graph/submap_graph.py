@@ -202,6 +202,7 @@ class SubmapGraph:
         local_units: bool = False,
         sigma_perp: float | None = None,
         dcs_phi: float = 0.0,
+        views: tuple | None = None,
     ) -> int:
         """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames.
 
@@ -209,7 +210,8 @@ class SubmapGraph:
         residual and ``sigma`` are in submap i's units (:mod:`gsslam.factors.loop_points`), so the loop
         cannot be met by shrinking the chain's scale. With ``local_units`` and ``sigma_perp``, ``sigma``
         is along each point's viewing ray and ``sigma_perp`` across it, with a DCS kernel when
-        ``dcs_phi > 0`` (:mod:`gsslam.factors.loop_rays`)."""
+        ``dcs_phi > 0`` (:mod:`gsslam.factors.loop_rays`). ``views``: ([N], [N]) the keyframe of each
+        point in submaps i and m; with the translation stretch they put the loop on both stretches."""
         for s in (i, m):
             if not 0 <= s < len(self._subs):
                 raise GraphError(f"loop names submap {s} but only {len(self._subs)} submaps exist")
@@ -217,6 +219,11 @@ class SubmapGraph:
             raise GraphError("a loop needs two different submaps")
         sig = self.cfg.loop_sigma_m if sigma is None else sigma
         try:
+            with_views = self.stretch and views is not None and views[0] is not None
+            if local_units and sigma_perp is not None and with_views:
+                o_i = self._subs[i].T_local_cam[views[0], :3, 3]  # [N, 3] the camera that saw each point
+                o_m = self._subs[m].T_local_cam[views[1], :3, 3]
+                return self._add(stretch.ray_spec(i, m, X_i, o_i, X_m, o_m, sig, sigma_perp, dcs_phi))
             if local_units and sigma_perp is not None:
                 ki, km = submap_key(i), submap_key(m)
                 return self._add(spec("ray_point", ki, km, X_i, X_m, sig, sigma_perp, dcs_phi=dcs_phi))

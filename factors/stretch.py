@@ -111,7 +111,11 @@ def make_stretched_flow_factor(
             read_transform(values, ka, group), read_transform(values, kb, group),
             P_a + o_a, Lb_inv, K, uv_tgt, group, H is not None,
         )  # fmt: skip
-        s = sqrt_c * np.sqrt(mixture_weights(e, sigma_px, inlier_prior, outlier_range_px)) if robust else sqrt_c
+        s = (
+            sqrt_c * np.sqrt(mixture_weights(e, sigma_px, inlier_prior, outlier_range_px))
+            if robust
+            else sqrt_c
+        )
         s = np.where(valid, s, 0.0)
         if H is not None:
             dim = JA.shape[2]

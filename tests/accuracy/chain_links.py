@@ -415,7 +415,7 @@ def spread(a) -> None:
         w = np.log(world_scales(st))
         w = w[np.isfinite(w)]
         t = st.get("stretch")
-        ts = "" if t is None or not np.any(t) else f"; stretch std {np.std(t):.4f} max |.| {np.abs(t).max():.3f}"
+        ts = "" if t is None or not np.any(t) else f"; stretch std {np.std(t):.4f} max {np.abs(t).max():.3f}"
         print(f"{Path(path).stem:24s} submaps {len(st['frame_indices']):3d} ATE all {ate['all']:.3f} kf "
               f"{ate['kf']:.3f} cm; world translation scale std log {w.std():.4f} (|d| mean "
               f"{np.abs(np.diff(w)).mean():.4f}){ts}")  # fmt: skip

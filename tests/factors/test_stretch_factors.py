@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import S, T
 
-from gsslam.factors import make_flow_factor, make_ray_point_factor, make_point_factor, make_submap_alignment_factor, to_gtsam, to_matrix
+from gsslam.factors import (
+    make_flow_factor,
+    make_point_factor,
+    make_ray_point_factor,
+    make_submap_alignment_factor,
+    to_gtsam,
+    to_matrix,
+)
 from gsslam.factors.stretch import (
     make_stretch_prior_factor,
     make_stretched_alignment_factor,

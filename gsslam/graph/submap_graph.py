@@ -168,7 +168,7 @@ class SubmapGraph:
             # chain of flow factors stays as compliant as its real error and a loop can bend it.
             weight = weight * min(1.0, self.cfg.flow_effective_points / len(idx))
         L_a, L_b = self._subs[ia].T_local_cam[ja], self._subs[ib].T_local_cam[jb]
-        if self.stretch:
+        if self.stretch and self.cfg.mono_stretch_flow:
             return self._add(stretch.flow_spec(ia, ib, corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K, weight,
                                                L_a, L_b, flow_kwargs(self.cfg)))  # fmt: skip
         return self._add(spec(

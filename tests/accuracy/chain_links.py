@@ -232,18 +232,21 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
 
     cfg = load_config(None, ["mapper.enabled=false"], mode="mono").graph
     be = Backend.from_config(cfg)
+    kn = knobs or {}
     for op in st["replay"]:
         if op[0] == "factor":
             kind, args, kwargs = op[2]
-            if kind in ("relative_point", "ray_point") and not loops:
+            if kind in ("relative_point", "ray_point", "stretched_ray_point") and not loops:
                 continue
             if kind == "point" and int(args[0]) > int(args[1]) and not loops:
                 continue
-            kn = knobs or {}
+
             if kind == "scale" and "ss" in kn:  # the scale factor's sigma
                 args = (*args[:3], kn["ss"])
             if kind == "point" and "adj" in kn and int(args[0]) < int(args[1]):  # adjacency sigma x adj
                 args = (*args[:4], args[4] * kn["adj"])
+            if kind == "stretch_prior" and "st" in kn:  # the translation stretch's prior sigma
+                args = (args[0], kn["st"])
             if kind == "flow" and "flow" in kn:  # flow factor weights x flow
                 kwargs = dict(kwargs, weight=np.asarray(kwargs["weight"]) * kn["flow"])
             if kind == "scale" and gtlink:
@@ -260,8 +263,12 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
                 args = (args[0], args[1], find_local(args[2]), *args[3:])
             if kind == "flow":
                 kwargs = dict(kwargs, L_a=find_local(kwargs["L_a"]), L_b=find_local(kwargs["L_b"]))
+            if "stretch" in kn:  # the run's graph with a translation stretch per submap (sigma kn["stretch"])
+                kind, args, kwargs = _stretched_spec(kind, args, kwargs, keyidx, Ls, "noflow" not in kn)
             sp = (kind, args, kwargs)
             be.add_factor(build_factor(sp), op[1], spec=sp)
+        elif op[0] == "value" and isinstance(op[2], np.ndarray) and op[2].ndim == 1:  # a stretch
+            be.add_value(int(op[1]), op[2])
         elif op[0] == "value":
             k = keyidx[int(op[1])]
             if k == 0:
@@ -278,6 +285,12 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
                     link = c * (r[k - 1] / r[k] if gtlink else 1.0)
                     S = Sp @ Ls[k - 1][-1] @ np.diag([link / c] * 3 + [1.0])
             be.add_value(int(op[1]), to_gtsam(S, "sim3"))
+            if "stretch" in kn:
+                from gsslam.graph import stretch as gs
+
+                be.add_value(gs.stretch_key(k), gs.initial_value())
+                sp = gs.prior_spec(k, kn["stretch"])
+                be.add_factor(build_factor(sp), None, spec=sp)
         elif op[0] == "remove":
             try:
                 be.remove_factors([int(h) for h in op[1]])
@@ -291,7 +304,28 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
     be.refine_batch()
     vals = be.values()
     S = [to_matrix(vals.atSimilarity3(submap_key(k))) for k in range(len(rows))]
+    from gsslam.graph.stretch import local_pose
+
+    Ls = [np.stack([local_pose(vals, k, L) for L in Lk]) for k, Lk in enumerate(Ls)]  # with a stretch
     return kf_ate(st, S, Ls), np.array([np.cbrt(np.linalg.det(s[:3, :3])) for s in S])
+
+
+def _stretched_spec(kind, args, kwargs, keyidx, Ls, flow: bool = True):
+    """A logged plain factor spec as its translation-stretch twin (gsslam.graph.stretch)."""
+    from gsslam.graph.stretch import stretch_key
+
+    if kind == "submap_alignment":
+        return "stretched_alignment", (args[0], args[1], stretch_key(keyidx[int(args[0])]), *args[2:]), kwargs
+    if kind not in ("point", "flow"):
+        return kind, args, kwargs
+    a, b = keyidx.get(int(args[0]), -9), keyidx.get(int(args[1]), -9)
+    if kind == "point" and b == a + 1:  # adjacency: the offset is frame K's camera in submap a
+        o = Ls[a][-1][:3, 3]
+        return "stretched_point", (args[0], args[1], stretch_key(a), args[2] - o, o, *args[3:]), kwargs
+    if kind == "flow" and flow:
+        kw = {k: v for k, v in kwargs.items() if k != "group"}
+        return "stretched_flow", (args[0], args[1], stretch_key(a), stretch_key(b), *args[2:]), kw
+    return kind, args, kwargs
 
 
 def kf_ate(st, S, Ls) -> float:
@@ -357,7 +391,7 @@ def show(a) -> None:
             print(f"  {v:23s} ATE kf {ate:6.2f} cm (no graph)")
         else:
             parts = v.split("+")
-            kn = {p.split("=")[0]: float(p.split("=")[1]) for p in parts if "=" in p}
+            kn = {p.split("=")[0]: float(p.split("=")[1]) if "=" in p else 1.0 for p in parts}
             ate, s = replay(
                 st,
                 rows,

@@ -74,12 +74,12 @@ def _angle(a, b) -> float:
 
 def run(a) -> None:
     from gsslam.config import load_config
-    from gsslam.datasets.base import open_dataset
+    from gsslam.datasets.base import loader, open_dataset
     from gsslam.factors import to_matrix
     from gsslam.slam.pipeline import Pipeline
 
     dsname, path, kw, nmax = ROWS[a.seq]
-    ds = open_dataset(dsname, path, **kw) if path else open_dataset(dsname, **kw)
+    ds = open_dataset(dsname, path, **kw) if path else loader(dsname)(None, **kw)
     loops = "true" if a.loops == "on" else "false"
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.overrides], mode="mono")
     pipe = Pipeline(cfg, ds.intrinsics)

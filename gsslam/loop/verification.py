@@ -27,7 +27,7 @@ _MATCHER = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
 def match_3d(
     rec_i: SubmapRecord, rec_m: SubmapRecord, view_pairs: tuple[tuple[int, int], ...]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Matched 3D point pairs over the given view pairs: (X_i [N, 3], X_m [N, 3]) in local frames,
     and the views of submaps i and m each match was seen in (``view_i``, ``view_m`` [N])."""
     Xi, Xm, views, views_m = [], [], [], []

@@ -112,6 +112,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.flow_effective_points": NONNEG,
     "graph.keyframe_refine_rot_sigma": POS,
     "graph.keyframe_refine_trans_sigma": POS,
+    "graph.mono_stretch_sigma": POS,
     "imu.gyro_noise_density": POS,
     "imu.gyro_random_walk": POS,
     "imu.accel_noise_density": POS,

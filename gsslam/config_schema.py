@@ -105,6 +105,11 @@ class GraphConfig:
     keyframe_refine: bool = False  # RGB-D: then a batch with one pose per keyframe (corrections inside submaps)
     keyframe_refine_rot_sigma: float = 0.001  # rad, a keyframe's correction against its submap's local pose
     keyframe_refine_trans_sigma: float = 0.001  # m
+    # mono: one log-stretch variable per submap scaling its local keyframe translations only (not its
+    # depth), prior mean 0 with std mono_stretch_sigma (gsslam.graph.stretch; docs/graph.md)
+    mono_translation_stretch: bool = False  # mono: a log-stretch per submap on its keyframe translations only
+    mono_stretch_sigma: float = 0.07  # std of that stretch's prior (mean 0), log
+    mono_stretch_flow: bool = True  # the cross-submap flow factors read the stretched local poses too
 
     align_rot_sigma: float = 0.01  # rad, rigid submap alignment through the shared frame
     align_trans_sigma: float = 0.02  # previous submap's units

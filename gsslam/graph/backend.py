@@ -147,7 +147,7 @@ class Backend:
             self._thresholds_grew |= self._thresholds.admit(key, value_dim(value), type_name(value))
         self._new_values.insert(key, value)
         self._types[key] = type_name(value)
-        if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3)):
+        if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3, np.ndarray)):
             self._unreplayable = (
                 self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {type_name(value)}"
             )

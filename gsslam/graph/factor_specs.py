@@ -29,6 +29,13 @@ from gsslam.factors import (
     make_scale_prior_factor,
     make_submap_alignment_factor,
 )
+from gsslam.factors.stretch import (
+    make_stretch_prior_factor,
+    make_stretched_alignment_factor,
+    make_stretched_flow_factor,
+    make_stretched_point_factor,
+    make_stretched_ray_point_factor,
+)
 
 FactorSpec = tuple[str, tuple, dict]  # (kind, positional args, keyword args), plain data only
 
@@ -56,6 +63,11 @@ MAKERS = {
     "registration": make_registration_factor,
     "depth_prior": make_depth_prior_factor,
     "keyframe_pose": make_keyframe_pose_factor,
+    "stretch_prior": make_stretch_prior_factor,
+    "stretched_alignment": make_stretched_alignment_factor,
+    "stretched_point": make_stretched_point_factor,
+    "stretched_flow": make_stretched_flow_factor,
+    "stretched_ray_point": make_stretched_ray_point_factor,
 }
 
 

@@ -44,7 +44,7 @@ class SolveReport:
 def relaxed_spec(s: FactorSpec) -> FactorSpec | None:
     """The non-robust twin of a factor spec, or None when it has no robust part to drop."""
     kind, args, kwargs = s
-    if kind == "flow" and kwargs.get("robust", True):
+    if kind in ("flow", "stretched_flow") and kwargs.get("robust", True):
         return kind, args, {**kwargs, "robust": False}
     if kind == "relative_pose":
         # (key_a, key_b, T_a_b, information, huber, group): huber at position 4, or a keyword

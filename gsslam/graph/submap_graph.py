@@ -26,6 +26,7 @@ import numpy as np
 from gsslam.config import GraphConfig
 from gsslam.errors import GsslamError
 from gsslam.factors import median_depth_ratio, to_gtsam, to_matrix
+from gsslam.graph import stretch
 from gsslam.graph.backend import Backend
 from gsslam.graph.factor_specs import build_factor, spec
 from gsslam.graph.keys import submap_key
@@ -55,6 +56,8 @@ class SubmapGraph:
         self._subs: list[SubmapEncoding] = []
         self._owner: dict[int, tuple[int, int]] = {}  # frame index -> (submap, position in it)
         self.gauge_handle: int | None = None  # handle of the Sim(3) prior on s0
+        # mono: a log-stretch per submap on its local translations (gsslam.graph.stretch)
+        self.stretch = monocular and cfg.mono_translation_stretch
 
     # -- submaps -----------------------------------------------------------------------------
     def add_submap(self, enc: SubmapEncoding) -> int:
@@ -79,6 +82,9 @@ class SubmapGraph:
                     f"{prev.frame_indices[-1]}; consecutive submaps must share that keyframe"
                 )
             self._chain(i, prev, enc)
+        if self.stretch:
+            self.backend.add_value(stretch.stretch_key(i), stretch.initial_value())
+            self._add(stretch.prior_spec(i, self.cfg.mono_stretch_sigma), f"stretch prior t{i}")
         self._subs.append(enc)
         for j, f in enumerate(enc.frame_indices):
             self._owner.setdefault(int(f), (i, j))
@@ -92,9 +98,12 @@ class SubmapGraph:
         except ValueError as e:
             raise GraphError(f"submap {i}: {e}") from e
         Z = prev.T_local_cam[-1]
-        E = Z @ np.diag([ratio, ratio, ratio, 1.0])
+        E = self._stretched(i - 1, Z) @ np.diag([ratio, ratio, ratio, 1.0])
         self.backend.add_value(b, to_gtsam(self.submap_pose(i - 1) @ E, "sim3"))
-        self._add(spec("submap_alignment", a, b, Z, cfg.align_rot_sigma, cfg.align_trans_sigma))
+        if self.stretch:
+            self._add(stretch.alignment_spec(i, Z, cfg.align_rot_sigma, cfg.align_trans_sigma))
+        else:
+            self._add(spec("submap_alignment", a, b, Z, cfg.align_rot_sigma, cfg.align_trans_sigma))
         self._add(spec("scale", a, b, float(np.log(ratio)), cfg.scale_sigma))
         if prev.points_cam.shape[1:3] == enc.points_cam.shape[1:3]:
             Xa = prev.points_cam[-1].reshape(-1, 3)
@@ -109,7 +118,10 @@ class SubmapGraph:
                 # come from the same local poses), so each point gets sigma * sqrt(N). Per-point sigmas
                 # made the chain so stiff that loops could not bend it (see docs/graph.md).
                 sigma = cfg.adjacency_sigma_m * np.sqrt(len(idx))
-                self._add(spec("point", a, b, Xa_local, Xb[idx], float(sigma)))
+                if self.stretch:
+                    self._add(stretch.adjacency_spec(i, Xa[idx], Z, Xb[idx], float(sigma)))
+                else:
+                    self._add(spec("point", a, b, Xa_local, Xb[idx], float(sigma)))
         else:
             log.warning("submap %d: point maps of the shared frame differ in size; no adjacency points", i)
         if not self.monocular:
@@ -155,6 +167,10 @@ class SubmapGraph:
             # points, the factor gets the information of flow_effective_points matches, so that a
             # chain of flow factors stays as compliant as its real error and a loop can bend it.
             weight = weight * min(1.0, self.cfg.flow_effective_points / len(idx))
+        L_a, L_b = self._subs[ia].T_local_cam[ja], self._subs[ib].T_local_cam[jb]
+        if self.stretch and self.cfg.mono_stretch_flow:
+            return self._add(stretch.flow_spec(ia, ib, corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K, weight,
+                                               L_a, L_b, flow_kwargs(self.cfg)))  # fmt: skip
         return self._add(spec(
             "flow", submap_key(ia), submap_key(ib), corr.uv_src[idx], d[idx], corr.uv_tgt[idx], K,
             weight=weight, group="sim3",
@@ -186,6 +202,7 @@ class SubmapGraph:
         local_units: bool = False,
         sigma_perp: float | None = None,
         dcs_phi: float = 0.0,
+        views: tuple | None = None,
     ) -> int:
         """Loop points: ``S(i)(X_i) ~ S(m)(X_m)``; ``X_i``, ``X_m`` [N, 3] in the submaps' local frames.
 
@@ -193,7 +210,8 @@ class SubmapGraph:
         residual and ``sigma`` are in submap i's units (:mod:`gsslam.factors.loop_points`), so the loop
         cannot be met by shrinking the chain's scale. With ``local_units`` and ``sigma_perp``, ``sigma``
         is along each point's viewing ray and ``sigma_perp`` across it, with a DCS kernel when
-        ``dcs_phi > 0`` (:mod:`gsslam.factors.loop_rays`)."""
+        ``dcs_phi > 0`` (:mod:`gsslam.factors.loop_rays`). ``views``: ([N], [N]) the keyframe of each
+        point in submaps i and m; with the translation stretch they put the loop on both stretches."""
         for s in (i, m):
             if not 0 <= s < len(self._subs):
                 raise GraphError(f"loop names submap {s} but only {len(self._subs)} submaps exist")
@@ -201,6 +219,11 @@ class SubmapGraph:
             raise GraphError("a loop needs two different submaps")
         sig = self.cfg.loop_sigma_m if sigma is None else sigma
         try:
+            with_views = self.stretch and views is not None and views[0] is not None
+            if local_units and sigma_perp is not None and with_views:
+                o_i = self._subs[i].T_local_cam[views[0], :3, 3]  # [N, 3] the camera that saw each point
+                o_m = self._subs[m].T_local_cam[views[1], :3, 3]
+                return self._add(stretch.ray_spec(i, m, X_i, o_i, X_m, o_m, sig, sigma_perp, dcs_phi))
             if local_units and sigma_perp is not None:
                 ki, km = submap_key(i), submap_key(m)
                 return self._add(spec("ray_point", ki, km, X_i, X_m, sig, sigma_perp, dcs_phi=dcs_phi))
@@ -304,14 +327,23 @@ class SubmapGraph:
     def keyframe_pose(self, frame_index: int) -> np.ndarray:
         """Rigid ``T_world_cam`` [4, 4] (scale removed from the rotation; translation in world units)."""
         i, j = self.owner(frame_index)
-        return self._rigid(self.submap_pose(i) @ self._subs[i].T_local_cam[j])
+        return self._rigid(self.submap_pose(i) @ self._stretched(i, self._subs[i].T_local_cam[j]))
 
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         vals = self.backend.values()
         S = [to_matrix(vals.atSimilarity3(submap_key(i))) for i in range(len(self._subs))]
         return {
-            f: self._rigid(S[i] @ self._subs[i].T_local_cam[j]) for f, (i, j) in sorted(self._owner.items())
+            f: self._rigid(S[i] @ stretch.local_pose(vals, i, self._subs[i].T_local_cam[j]))
+            for f, (i, j) in sorted(self._owner.items())
         }
+
+    def _stretched(self, i: int, L: np.ndarray) -> np.ndarray:
+        """Submap i's local pose ``L`` [4, 4] with its translation stretch (as is without the option)."""
+        return stretch.local_pose(self.backend.values(), i, L) if self.stretch else L
+
+    def submap_stretches(self) -> np.ndarray:  # [num_submaps] log-stretch (zeros without the option)
+        vals = self.backend.values()
+        return np.array([stretch.stretch_of(vals, i) for i in range(len(self._subs))])
 
     @staticmethod
     def _rigid(T: np.ndarray) -> np.ndarray:

@@ -93,6 +93,8 @@ class LoopConstraint:
     inlier_ratio: float
     score: float
     threshold: float
+    view_i: np.ndarray | None = None  # [N] the keyframe of submap i each point was seen in (None: unknown)
+    view_m: np.ndarray | None = None  # [N] the same in submap m
 
     def __post_init__(self) -> None:
         if self.X_i.shape != self.X_m.shape or self.X_i.ndim != 2 or self.X_i.shape[1] != 3:

@@ -27,10 +27,10 @@ _MATCHER = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
 def match_3d(
     rec_i: SubmapRecord, rec_m: SubmapRecord, view_pairs: tuple[tuple[int, int], ...]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Matched 3D point pairs over the given view pairs: (X_i [N, 3], X_m [N, 3]) in local frames,
-    and the view of submap i each match was seen in (``view_i`` [N])."""
-    Xi, Xm, views = [], [], []
+    and the views of submaps i and m each match was seen in (``view_i``, ``view_m`` [N])."""
+    Xi, Xm, views, views_m = [], [], [], []
     for a, b in view_pairs:
         fa, fb = rec_i.features[a], rec_m.features[b]
         if len(fa.descriptors) < 3 or len(fb.descriptors) < 3:
@@ -43,9 +43,10 @@ def match_3d(
         Xi.append(fa.points_local[qi])
         Xm.append(fb.points_local[ti])
         views.append(np.full(len(qi), a, dtype=np.int64))
+        views_m.append(np.full(len(qi), b, dtype=np.int64))
     if not Xi:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    return np.concatenate(Xi), np.concatenate(Xm), np.concatenate(views)
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    return np.concatenate(Xi), np.concatenate(Xm), np.concatenate(views), np.concatenate(views_m)
 
 
 def _iterations_for(inlier_fraction: float, confidence: float = 0.999) -> int:
@@ -124,7 +125,7 @@ def verify_candidate(
     rng: np.random.Generator,
 ) -> Verdict:
     """RANSAC-verify one candidate; the :class:`Verdict` says why a rejected one failed."""
-    X_i, X_m, view_i = match_3d(rec_i, rec_m, cand.view_pairs[: cfg.verify_view_pairs])
+    X_i, X_m, view_i, view_m = match_3d(rec_i, rec_m, cand.view_pairs[: cfg.verify_view_pairs])
     thr = inlier_threshold(rec_i, cfg, mode)
     test = None
     if mode == "mono" and cfg.mono_inlier_gate == "ray" and len(X_i):
@@ -158,5 +159,7 @@ def verify_candidate(
         inlier_ratio=ratio,
         score=cand.score,
         threshold=thr,
+        view_i=view_i[inl],
+        view_m=view_m[inl],
     )
     return Verdict(loop, len(X_i), n_inl, "verified")

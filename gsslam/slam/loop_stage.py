@@ -107,7 +107,7 @@ class LoopStage:
             else:
                 h_ = graph.add_loop(
                     lc.i, lc.m, lc.X_i, lc.X_m, sigma=w.sigma, local_units=True, sigma_perp=w.sigma_perp,
-                    dcs_phi=w.dcs_phi,
+                    dcs_phi=w.dcs_phi, views=(lc.view_i, lc.view_m),
                 )  # fmt: skip
             loops[h_] = lc
         graph.update()

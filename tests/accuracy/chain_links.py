@@ -39,10 +39,18 @@ import numpy as np
 
 OUT = os.environ.get("CHAIN_LINKS_OUT", "/tmp/chain_links")
 BLUR = {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
-TEDDY = "../shared/data/rgbd_dataset_freiburg3_teddy"
+DATA = os.environ.get("GSSLAM_DATA", "../shared/data")
+TEDDY = f"{DATA}/rgbd_dataset_freiburg3_teddy"
 FBF = dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)
 ROWS = {  # the tracking suite's rows (gsslam/run/suites/tracking.yaml): (dataset, path, kwargs, frames)
     "s2blur": ("playback", TEDDY, dict(base="tum", pattern="fbfbf", stride=2, degrade=BLUR), 300),
+    "s2blur7m": (  # teddy200_s2_blur_7scenes_mono
+        "playback",
+        TEDDY,
+        dict(base="tum", pattern="fbfbf", stride=2, degrade=BLUR,
+             misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth")),
+        300,
+    ),
     "s3blur": ("playback", TEDDY, dict(base="tum", pattern="fbfbfbf", stride=3, degrade=BLUR), 300),
     "fbf": ("playback", TEDDY, FBF, None),
     "teddy200": ("tum", TEDDY, dict(with_depth=False), None),  # as the runner opens a mono TUM row
@@ -52,8 +60,8 @@ ROWS = {  # the tracking suite's rows (gsslam/run/suites/tracking.yaml): (datase
         dict(n_frames=800, width=320, height=240, trajectory="loop", seed=5),
         None,
     ),
-    "kitti01": ("kitti", "../shared/data/kitti_odometry", dict(sequence="01"), None),
-    "kitti06": ("kitti", "../shared/data/kitti_odometry", dict(sequence="06"), None),
+    "kitti01": ("kitti", f"{DATA}/kitti_odometry", dict(sequence="01"), None),
+    "kitti06": ("kitti", f"{DATA}/kitti_odometry", dict(sequence="06"), None),
 }
 
 
@@ -66,12 +74,12 @@ def _angle(a, b) -> float:
 
 def run(a) -> None:
     from gsslam.config import load_config
-    from gsslam.datasets.base import open_dataset
+    from gsslam.datasets.base import loader, open_dataset
     from gsslam.factors import to_matrix
     from gsslam.slam.pipeline import Pipeline
 
     dsname, path, kw, nmax = ROWS[a.seq]
-    ds = open_dataset(dsname, path, **kw) if path else open_dataset(dsname, **kw)
+    ds = open_dataset(dsname, path, **kw) if path else loader(dsname)(None, **kw)
     loops = "true" if a.loops == "on" else "false"
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.overrides], mode="mono")
     pipe = Pipeline(cfg, ds.intrinsics)
@@ -85,9 +93,11 @@ def run(a) -> None:
     ch = pipe.chains[0]
     st = {"seq": a.seq, "loops": a.loops, "set": a.overrides, "chains": len(pipe.chains)}
     st["replay"] = [
-        (op[0], op[1], to_matrix(op[2])) if op[0] == "value" else op for op in ch.graph.backend.replay_log()
+        (op[0], op[1], to_matrix(op[2])) if op[0] == "value" and not isinstance(op[2], np.ndarray) else op
+        for op in ch.graph.backend.replay_log()
     ]
     pipe.finish()
+    st["stretch"] = ch.graph.submap_stretches() if hasattr(ch.graph, "submap_stretches") else None
     st["kf_after"] = pipe.keyframe_poses()
     st["fr_after"] = pipe.frame_poses()
     st["ts"], st["gt"] = pipe.timestamps, ds.ground_truth()
@@ -222,18 +232,21 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
 
     cfg = load_config(None, ["mapper.enabled=false"], mode="mono").graph
     be = Backend.from_config(cfg)
+    kn = knobs or {}
     for op in st["replay"]:
         if op[0] == "factor":
             kind, args, kwargs = op[2]
-            if kind in ("relative_point", "ray_point") and not loops:
+            if kind in ("relative_point", "ray_point", "stretched_ray_point") and not loops:
                 continue
             if kind == "point" and int(args[0]) > int(args[1]) and not loops:
                 continue
-            kn = knobs or {}
+
             if kind == "scale" and "ss" in kn:  # the scale factor's sigma
                 args = (*args[:3], kn["ss"])
             if kind == "point" and "adj" in kn and int(args[0]) < int(args[1]):  # adjacency sigma x adj
                 args = (*args[:4], args[4] * kn["adj"])
+            if kind == "stretch_prior" and "st" in kn:  # the translation stretch's prior sigma
+                args = (args[0], kn["st"])
             if kind == "flow" and "flow" in kn:  # flow factor weights x flow
                 kwargs = dict(kwargs, weight=np.asarray(kwargs["weight"]) * kn["flow"])
             if kind == "scale" and gtlink:
@@ -250,8 +263,12 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
                 args = (args[0], args[1], find_local(args[2]), *args[3:])
             if kind == "flow":
                 kwargs = dict(kwargs, L_a=find_local(kwargs["L_a"]), L_b=find_local(kwargs["L_b"]))
+            if "stretch" in kn:  # the run's graph with a translation stretch per submap (sigma kn["stretch"])
+                kind, args, kwargs = _stretched_spec(kind, args, kwargs, keyidx, Ls, "noflow" not in kn)
             sp = (kind, args, kwargs)
             be.add_factor(build_factor(sp), op[1], spec=sp)
+        elif op[0] == "value" and isinstance(op[2], np.ndarray) and op[2].ndim == 1:  # a stretch
+            be.add_value(int(op[1]), op[2])
         elif op[0] == "value":
             k = keyidx[int(op[1])]
             if k == 0:
@@ -268,6 +285,12 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
                     link = c * (r[k - 1] / r[k] if gtlink else 1.0)
                     S = Sp @ Ls[k - 1][-1] @ np.diag([link / c] * 3 + [1.0])
             be.add_value(int(op[1]), to_gtsam(S, "sim3"))
+            if "stretch" in kn:
+                from gsslam.graph import stretch as gs
+
+                be.add_value(gs.stretch_key(k), gs.initial_value())
+                sp = gs.prior_spec(k, kn["stretch"])
+                be.add_factor(build_factor(sp), None, spec=sp)
         elif op[0] == "remove":
             try:
                 be.remove_factors([int(h) for h in op[1]])
@@ -281,7 +304,28 @@ def replay(st, rows, gtlink: bool, gtdir: bool, loops: bool = True, knobs: dict 
     be.refine_batch()
     vals = be.values()
     S = [to_matrix(vals.atSimilarity3(submap_key(k))) for k in range(len(rows))]
+    from gsslam.graph.stretch import local_pose
+
+    Ls = [np.stack([local_pose(vals, k, L) for L in Lk]) for k, Lk in enumerate(Ls)]  # with a stretch
     return kf_ate(st, S, Ls), np.array([np.cbrt(np.linalg.det(s[:3, :3])) for s in S])
+
+
+def _stretched_spec(kind, args, kwargs, keyidx, Ls, flow: bool = True):
+    """A logged plain factor spec as its translation-stretch twin (gsslam.graph.stretch)."""
+    from gsslam.graph.stretch import stretch_key
+
+    if kind == "submap_alignment":
+        return "stretched_alignment", (args[0], args[1], stretch_key(keyidx[int(args[0])]), *args[2:]), kwargs
+    if kind not in ("point", "flow"):
+        return kind, args, kwargs
+    a, b = keyidx.get(int(args[0]), -9), keyidx.get(int(args[1]), -9)
+    if kind == "point" and b == a + 1:  # adjacency: the offset is frame K's camera in submap a
+        o = Ls[a][-1][:3, 3]
+        return "stretched_point", (args[0], args[1], stretch_key(a), args[2] - o, o, *args[3:]), kwargs
+    if kind == "flow" and flow:
+        kw = {k: v for k, v in kwargs.items() if k != "group"}
+        return "stretched_flow", (args[0], args[1], stretch_key(a), stretch_key(b), *args[2:]), kw
+    return kind, args, kwargs
 
 
 def kf_ate(st, S, Ls) -> float:
@@ -347,7 +391,7 @@ def show(a) -> None:
             print(f"  {v:23s} ATE kf {ate:6.2f} cm (no graph)")
         else:
             parts = v.split("+")
-            kn = {p.split("=")[0]: float(p.split("=")[1]) for p in parts if "=" in p}
+            kn = {p.split("=")[0]: float(p.split("=")[1]) if "=" in p else 1.0 for p in parts}
             ate, s = replay(
                 st,
                 rows,
@@ -366,6 +410,49 @@ def show(a) -> None:
                 f"  replay {v:16s} ATE kf {ate:6.2f} cm; world translation scale: std log {w.std():.4f}, "
                 f"last/first {np.exp(w[-1] - w[0]):.3f}"
             )
+
+
+def world_scales(st) -> np.ndarray:
+    """Per submap: least-squares ratio of its keyframes' final world translations (from the submap's
+    first keyframe, as the run output them) to the ground truth's; NaN without ground truth."""
+    P = st["kf_after"]
+    out = []
+    for fi in st["frame_indices"]:
+        pairs = [(P[f], gt_pose(st, f)) for f in fi if f in P]
+        pairs = [(a, b) for a, b in pairs if b is not None]
+        if len(pairs) < 3:
+            out.append(float("nan"))
+            continue
+        (A0, G0), num, den = pairs[0], 0.0, 0.0
+        for A, G in pairs[1:]:
+            ta, tg = A[:3, 3] - A0[:3, 3], G[:3, 3] - G0[:3, 3]
+            num += np.linalg.norm(ta) * np.linalg.norm(tg)
+            den += np.linalg.norm(tg) ** 2
+        out.append(num / den if den > 0 else float("nan"))
+    return np.array(out)
+
+
+def spread(a) -> None:
+    """All-frame and keyframe ATE (Sim(3), cm) and the spread of the submaps' world translation scale."""
+    from gsslam.eval.ate import compute_ate
+    from gsslam.types import Trajectory
+
+    for path in a.pkls:
+        with open(path, "rb") as fh:
+            st = pickle.load(fh)
+        fr = st["fr_after"][0] if isinstance(st["fr_after"], tuple) else st["fr_after"]
+        ate = {}
+        for name, P in (("all", fr), ("kf", st["kf_after"])):
+            ks = sorted(P)
+            tr = Trajectory(np.array([st["ts"][k] for k in ks]), np.stack([P[k] for k in ks]))
+            ate[name] = 100 * compute_ate(st["gt"], tr, align="sim3")[0].stats.rmse
+        w = np.log(world_scales(st))
+        w = w[np.isfinite(w)]
+        t = st.get("stretch")
+        ts = "" if t is None or not np.any(t) else f"; stretch std {np.std(t):.4f} max {np.abs(t).max():.3f}"
+        print(f"{Path(path).stem:24s} submaps {len(st['frame_indices']):3d} ATE all {ate['all']:.3f} kf "
+              f"{ate['kf']:.3f} cm; world translation scale std log {w.std():.4f} (|d| mean "
+              f"{np.abs(np.diff(w)).mean():.4f}){ts}")  # fmt: skip
 
 
 def main(argv=None) -> int:
@@ -392,9 +479,11 @@ def main(argv=None) -> int:
             "chain+gtlink+gtdir",
         ],
     )
+    sp = sub.add_parser("spread")
+    sp.add_argument("pkls", nargs="+")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
-    run(a) if a.cmd == "run" else show(a)
+    {"run": run, "show": show, "spread": spread}[a.cmd](a)
     return 0
 
 

@@ -6,8 +6,13 @@ left out or re-weighted.
                                                               truth, its chi2 / 3N and DCS weight after the run
 ``PYTHONPATH=. python focal_loops.py PKL VARIANT ...``      keyframe ATE (Sim(3), cm) before / after the batch
 
+``PYTHONPATH=. python focal_loops.py PKL eighths VARIANT ...``  the same, and the RMS error of each eighth
+                                                              of the keyframes (cm, after the batch)
+
 Variants: ``asis``; ``off`` (no loop); ``oracleX`` (loops whose rotation is more than X deg from the truth
-left out); ``dropI-M`` (loop I-M left out); ``neffK`` (information of at most K points); ``keepI-M`` (its removal after optimisation undone); ``A+B`` (both); ``ownC`` (DCS Phi = C x the loop's own-fit chi2); ``phiC`` (DCS Phi = C x 3N instead of the run's).
+left out); ``dropI-M`` (loop I-M left out); ``neffK`` (information of at most K points); ``keepI-M`` (its
+removal after optimisation undone); ``A+B`` (both); ``ownC`` (DCS Phi = C x the loop's own-fit chi2);
+``phiC`` (DCS Phi = C x 3N instead of the run's).
 """
 import pickle
 import sys
@@ -16,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))  # replay.py
-from replay import is_loop, replay  # noqa: E402
+from replay import is_loop, kf_poses, replay  # noqa: E402
 
 from gsslam.factors import to_matrix  # noqa: E402
 from gsslam.geometry import invert_T, split_sim3, transform_points  # noqa: E402
@@ -48,31 +53,6 @@ def ray_chi2(X_i, X_m, T, s_ray, s_perp):
     return float(np.sum(a**2) / s_ray**2 + np.sum(p**2) / s_perp**2)
 
 
-_MPL = []
-
-
-def metres_per_unit():
-    """Per submap: metres per local unit, the median ground-truth depth of its views over its point maps'
-    median depth (the tracking suite's s2_blur playback, registered depth; GSSLAM_DATA = the data root)."""
-    if not _MPL:
-        import os
-
-        from gsslam.datasets.base import open_dataset
-
-        ds = open_dataset("playback", os.environ.get("GSSLAM_DATA", "../shared/data") + "/rgbd_dataset_freiburg3_teddy",
-                          base="tum", pattern="fbfbf", stride=2)
-        for fi, med in zip(st["frame_indices"], st["enc_depth_med"]):
-            d = np.concatenate([ds[f].depth.ravel() for f in fi])
-            _MPL.append(float(np.nanmedian(d[d > 0])) / med)
-    return _MPL
-
-
-def scale_err(i, m, T_i_m):
-    """Log-scale error of the loop (%) against the ground-truth depths: T_i_m maps m-units to i-units."""
-    mpl = metres_per_unit()
-    return 100 * float(np.log(split_sim3(T_i_m)[2] * mpl[i] / mpl[m]))
-
-
 def loop_specs():
     return [op[2] for op in st["replay"] if op[0] == "factor" and is_loop(op[2])]
 
@@ -85,7 +65,7 @@ def table():
     err = {(lc["i"], lc["m"]): rot_err(lc["i"], lc["m"], lc["T_i_m"]) for lc in st["loopc"]}
     S = st["S_before"]
     kept = {(lc["i"], lc["m"]) for lc in st["loopc"]}
-    print(" i-m    N   s_ray/thr s_perp/thr  rot_err  est_err  scale_err% est_scale_err%  chi2/3N  dcs_w  kept")
+    print(" i-m    N   s_ray/thr s_perp/thr  rot_err  est_err  chi2/3N  dcs_w  kept")
     for sp in loop_specs():
         i, m = ij(sp)
         Xi, Xm, s_ray, s_perp = sp[1][2], sp[1][3], sp[1][4], sp[1][5]
@@ -96,9 +76,8 @@ def table():
         lc = next((x for x in st["loopc"] if (x["i"], x["m"]) == (i, m)), None)
         thr = lc["thr"] if lc else np.nan
         e = err.get((i, m), np.nan)
-        se = scale_err(i, m, lc["T_i_m"]) if lc else np.nan
         print(f"{i:2d}-{m:2d} {len(Xi):4d}  {s_ray / thr:6.3f}   {s_perp / thr:6.3f}   {e:6.2f}  "
-              f"{rot_err(i, m, T_est):6.2f}  {se:8.2f}  {scale_err(i, m, T_est):8.2f}  "
+              f"{rot_err(i, m, T_est):6.2f}  "
               f"{c2 / (3 * len(Xi)):7.2f}  {w:5.2f}  {(i, m) in kept}")
 
 
@@ -176,6 +155,18 @@ if __name__ == "__main__":
     args = sys.argv[2:]
     if args[:1] == ["table"]:
         table()
+    elif args[:1] == ["eighths"]:
+        from gsslam.eval.ate import compute_ate
+        from gsslam.types import Trajectory
+
+        for v in args[1:]:
+            a, b, be = run_variant(v)
+            P = kf_poses(be.values(), st)
+            ks = sorted(P)
+            res, _ = compute_ate(gt, Trajectory(np.array([ts[k] for k in ks]), np.stack([P[k] for k in ks])), align="sim3")
+            e = 100 * np.asarray(res.errors)
+            parts = " ".join(f"{np.sqrt(np.mean(e[j] ** 2)):.2f}" for j in np.array_split(np.arange(len(e)), 8))
+            print(f"{v}: kf ATE {b:.3f}, eighths {parts}", flush=True)
     else:
         for v in args:
             a, b, be = run_variant(v)

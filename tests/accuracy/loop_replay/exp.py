@@ -13,28 +13,34 @@ from gsslam.eval.ate import compute_ate
 from gsslam.types import Trajectory
 
 OUT = os.environ.get("LOOP_REPLAY_OUT", "/tmp/loop_replay")
+DATA = os.environ.get("GSSLAM_DATA", "../shared/data")  # the data root
 os.makedirs(OUT, exist_ok=True)
 SEQ = {
     "synth800": ("synthetic", str(Path(__file__).with_name("synth800.yaml")), {}),
-    "fbf": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+    "fbf": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)),
     # the tracking suite's teddy200_fbf mono row: the playback opened as the runner opens it (with depth: 640 frames)
-    "fbfs": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+    "fbfs": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
              dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)),
-    "fbf_misreg": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+    "fbf_misreg": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0,
                  misregister=dict(baseline_m=0.025, focal_scale=1.114))),
-    "teddy200": ("tum", "../shared/data/rgbd_dataset_freiburg3_teddy", {}),
+    "teddy200": ("tum", DATA + "/rgbd_dataset_freiburg3_teddy", {}),
     # the tracking suite's 7-Scenes proxies (session 9): the rows above handed out with depth intrinsics
-    "fbf_7scenes": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+    "fbf_7scenes": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
             dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0,
                  misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth"))),
-    "s2blur_7scenes": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+    "s2blur_7scenes": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
                dict(base="tum", pattern="fbfbf", stride=2,
                     degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150),
                     misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth"))),
+    # the tracking suite's teddy200_s2_blur_7scenes_mono row with the handed-out focal scaled by --focal
+    # (session 11 sweep; opened as the runner opens a playback row; run it with --max-frames 300)
+    "s2blur_f": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
+                 dict(base="tum", pattern="fbfbf", stride=2,
+                      degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))),
     # the tracking suite's teddy200_s2_blur row (run it with --max-frames 300)
-    "s2blur": ("playback", "../shared/data/rgbd_dataset_freiburg3_teddy",
+    "s2blur": ("playback", DATA + "/rgbd_dataset_freiburg3_teddy",
                dict(base="tum", pattern="fbfbf", stride=2,
                     degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))),
 }
@@ -52,13 +58,17 @@ def main():
     ap.add_argument("seq"); ap.add_argument("--mode", default="mono"); ap.add_argument("--loops", default="on")
     ap.add_argument("--set", action="append", default=[]); ap.add_argument("--tag", default="")
     ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--focal", type=float, default=None,
+                    help="s2blur_f: the focal scale handed out (misregister report=depth; mono reads no depth)")
     ap.add_argument("--keep-depth", action="store_true", help="also keep every submap's depth maps (ICP replay)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO if 0 else logging.WARNING)
     logging.getLogger("gsslam.loop").setLevel(logging.INFO); logging.getLogger("gsslam.slam.loop_stage").setLevel(logging.INFO)
     dsname, path, kw = SEQ[a.seq]
     kw = dict(kw)
-    if a.mode == "mono" and dsname in ("tum", "playback") and a.seq != "fbfs":
+    if a.seq == "s2blur_f":
+        kw["misregister"] = dict(baseline_m=0.025, focal_scale=a.focal, report="depth")
+    if a.mode == "mono" and dsname in ("tum", "playback") and a.seq not in ("fbfs", "s2blur_f"):
         kw.setdefault("with_depth", False)
     ds = open_dataset(dsname, path, **kw)
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={'true' if a.loops=='on' else 'false'}", *a.set], mode=a.mode)
@@ -95,7 +105,7 @@ def main():
         state["enc_depth"] = [e.points_cam[..., 2].astype(np.float32) for e in ch.encodings]
         state["enc_intr"] = [e.intrinsics for e in ch.encodings]
     state["enc_depth_med"] = [float(np.nanmedian(e.points_cam[..., 2])) for e in ch.encodings]
-    row = dict(seq=a.seq, mode=a.mode, loops=a.loops, set=a.set, tag=a.tag, chains=len(pipe.chains),
+    row = dict(seq=a.seq, focal=a.focal, mode=a.mode, loops=a.loops, set=a.set, tag=a.tag, chains=len(pipe.chains),
                submaps=ch.graph.num_submaps,
                ate_all=ate(gt, ts, state["fr_after"]), ate_kf=ate(gt, ts, state["kf_after"]),
                ate_before=ate(gt, ts, state["fr_before"]), ate_kf_before=ate(gt, ts, state["kf_before"]),
@@ -104,7 +114,8 @@ def main():
     print(json.dumps(row))
     with open(f"{OUT}/results.jsonl", "a") as f:
         f.write(json.dumps(row) + "\n")
-    name = f"{OUT}/{a.seq}_{a.mode}_{a.loops}{('_' + a.tag) if a.tag else ''}.pkl"
+    seq = a.seq if a.focal is None else f"{a.seq}{a.focal:g}"
+    name = f"{OUT}/{seq}_{a.mode}_{a.loops}{('_' + a.tag) if a.tag else ''}.pkl"
     with open(name, "wb") as f:
         pickle.dump(state, f)
 

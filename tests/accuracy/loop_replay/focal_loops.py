@@ -1,0 +1,173 @@
+"""Session 11 measuring tool (docs/results.md, "Mono loops and the focal length, session 11"), not a test:
+the loops of a mono run kept by ``exp.py`` against the ground truth, and replays of its graph with loops
+left out or re-weighted.
+
+``PYTHONPATH=. python focal_loops.py PKL table``            per loop: N, ray sigmas, rotation error vs the
+                                                              truth, its chi2 / 3N and DCS weight after the run
+``PYTHONPATH=. python focal_loops.py PKL VARIANT ...``      keyframe ATE (Sim(3), cm) before / after the batch
+
+``PYTHONPATH=. python focal_loops.py PKL eighths VARIANT ...``  the same, and the RMS error of each eighth
+                                                              of the keyframes (cm, after the batch)
+
+Variants: ``asis``; ``off`` (no loop); ``oracleX`` (loops whose rotation is more than X deg from the truth
+left out); ``dropI-M`` (loop I-M left out); ``neffK`` (information of at most K points); ``keepI-M`` (its
+removal after optimisation undone); ``A+B`` (both); ``ownC`` (DCS Phi = C x the loop's own-fit chi2);
+``phiC`` (DCS Phi = C x 3N instead of the run's).
+"""
+import pickle
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))  # replay.py
+from replay import is_loop, kf_poses, replay  # noqa: E402
+
+from gsslam.factors import to_matrix  # noqa: E402
+from gsslam.geometry import invert_T, split_sim3, transform_points  # noqa: E402
+from gsslam.graph.keys import submap_key  # noqa: E402
+
+st = pickle.load(open(sys.argv[1], "rb"))
+gt, ts = st["gt"], st["ts"]
+KEY2SUB = {submap_key(j): j for j in range(len(st["frame_indices"]))}
+
+
+def gt_at(t):
+    i = np.clip(np.searchsorted(gt.timestamps, t), 0, len(gt.timestamps) - 1)
+    return gt.poses[i]
+
+
+def rot_err(i, m, T_i_m):
+    """Degrees between the loop's rotation and the truth's (free of the unknown mono scale)."""
+    Gi, Gm = gt_at(ts[st["frame_indices"][i][0]]), gt_at(ts[st["frame_indices"][m][0]])
+    R_gt = (invert_T(Gi) @ Gm)[:3, :3]
+    R = split_sim3(T_i_m)[0]
+    return float(np.degrees(np.arccos(np.clip((np.trace(R_gt.T @ R) - 1) / 2, -1, 1))))
+
+
+def ray_chi2(X_i, X_m, T, s_ray, s_perp):
+    d = X_i - transform_points(T, X_m)
+    u = X_i / np.linalg.norm(X_i, axis=1, keepdims=True)
+    a = np.sum(d * u, 1)
+    p = d - a[:, None] * u
+    return float(np.sum(a**2) / s_ray**2 + np.sum(p**2) / s_perp**2)
+
+
+def loop_specs():
+    return [op[2] for op in st["replay"] if op[0] == "factor" and is_loop(op[2])]
+
+
+def ij(sp):
+    return KEY2SUB[sp[1][0]], KEY2SUB[sp[1][1]]
+
+
+def table():
+    err = {(lc["i"], lc["m"]): rot_err(lc["i"], lc["m"], lc["T_i_m"]) for lc in st["loopc"]}
+    S = st["S_before"]
+    kept = {(lc["i"], lc["m"]) for lc in st["loopc"]}
+    print(" i-m    N   s_ray/thr s_perp/thr  rot_err  est_err  chi2/3N  dcs_w  kept")
+    for sp in loop_specs():
+        i, m = ij(sp)
+        Xi, Xm, s_ray, s_perp = sp[1][2], sp[1][3], sp[1][4], sp[1][5]
+        phi = sp[2].get("dcs_phi", 0.0) * 3 * len(Xi)
+        T_est = invert_T(S[i]) @ S[m]
+        c2 = ray_chi2(Xi, Xm, T_est, s_ray, s_perp)
+        w = 1.0 if phi <= 0 or c2 <= phi else (2 * phi / (phi + c2)) ** 2
+        lc = next((x for x in st["loopc"] if (x["i"], x["m"]) == (i, m)), None)
+        thr = lc["thr"] if lc else np.nan
+        e = err.get((i, m), np.nan)
+        print(f"{i:2d}-{m:2d} {len(Xi):4d}  {s_ray / thr:6.3f}   {s_perp / thr:6.3f}   {e:6.2f}  "
+              f"{rot_err(i, m, T_est):6.2f}  "
+              f"{c2 / (3 * len(Xi)):7.2f}  {w:5.2f}  {(i, m) in kept}")
+
+
+def keep(pairs):
+    """The run's log with the removals of loops ``pairs`` left out (handles = order of the factor ops)."""
+    ops, handles, out = st["replay"], {}, []
+    for op in ops:
+        if op[0] == "factor":
+            handles[len(handles)] = ij(op[2]) if is_loop(op[2]) else None
+    for op in ops:
+        if op[0] == "remove":
+            op = ("remove", [h for h in op[1] if handles.get(int(h)) not in pairs])
+        out.append(op)
+    return {**st, "replay": out}
+
+
+def run_variant(name):
+    """``A+B``: variants applied together (each a loop map, or ``keepI-M,..``: its removal undone)."""
+    s, maps = st, []
+    for part in name.split("+"):
+        if part.startswith("keep"):
+            s = keep({tuple(int(x) for x in p.split("-")) for p in part[4:].split(",")})
+        else:
+            maps.append(variant(part).get("loop_map", lambda sp: sp))
+
+    def loop_map(sp):
+        for m in maps:
+            sp = m(sp)
+            if sp is None:
+                return None
+        return sp
+
+    return replay(s, loop_map=loop_map)
+
+
+def variant(name):
+    if name == "asis":
+        return dict()
+    if name == "off":
+        return dict(loop_map=lambda sp: None)
+    if name.startswith("oracle"):
+        lim = float(name[6:])
+        bad = set()
+        for lc in st["loopc"]:
+            if rot_err(lc["i"], lc["m"], lc["T_i_m"]) > lim:
+                bad.add((lc["i"], lc["m"]))
+        return dict(loop_map=lambda sp: None if ij(sp) in bad else sp)
+    if name.startswith("drop"):
+        pairs = {tuple(int(x) for x in p.split("-")) for p in name[4:].split(",")}
+        return dict(loop_map=lambda sp: None if ij(sp) in pairs else sp)
+    if name.startswith("neff"):  # the loop's information capped at K independent points: sigmas x sqrt(N / K)
+        K = float(name[4:])
+
+        def m(sp):
+            f = np.sqrt(max(1.0, len(sp[1][2]) / K))
+            a = sp[1]
+            return (sp[0], (*a[:4], a[4] * f, a[5] * f, *a[6:]), sp[2])
+        return dict(loop_map=m)
+    if name.startswith("own"):  # DCS Phi = C x the loop's chi2 under its own Sim(3) fit (C = 1 unless given)
+        c = float(name[3:] or 1)
+        from gsslam.geometry import umeyama
+
+        def m(sp):
+            Xi, Xm, s_ray, s_perp = sp[1][2], sp[1][3], sp[1][4], sp[1][5]
+            c0 = ray_chi2(Xi, Xm, umeyama(Xm, Xi, with_scale=True), s_ray, s_perp)
+            return (sp[0], sp[1], {**sp[2], "dcs_phi": c * c0 / (3 * len(Xi))})
+        return dict(loop_map=m)
+    if name.startswith("phi"):
+        c = float(name[3:])
+        return dict(loop_map=lambda sp: (sp[0], sp[1], {**sp[2], "dcs_phi": c}))
+    raise SystemExit(f"unknown variant {name}")
+
+
+if __name__ == "__main__":
+    args = sys.argv[2:]
+    if args[:1] == ["table"]:
+        table()
+    elif args[:1] == ["eighths"]:
+        from gsslam.eval.ate import compute_ate
+        from gsslam.types import Trajectory
+
+        for v in args[1:]:
+            a, b, be = run_variant(v)
+            P = kf_poses(be.values(), st)
+            ks = sorted(P)
+            res, _ = compute_ate(gt, Trajectory(np.array([ts[k] for k in ks]), np.stack([P[k] for k in ks])), align="sim3")
+            e = 100 * np.asarray(res.errors)
+            parts = " ".join(f"{np.sqrt(np.mean(e[j] ** 2)):.2f}" for j in np.array_split(np.arange(len(e)), 8))
+            print(f"{v}: kf ATE {b:.3f}, eighths {parts}", flush=True)
+    else:
+        for v in args:
+            a, b, be = run_variant(v)
+            print(f"{v}: kf ATE before batch {a:.3f} after batch {b:.3f}", flush=True)

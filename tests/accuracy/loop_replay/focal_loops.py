@@ -14,27 +14,22 @@ left out); ``dropI-M`` (loop I-M left out); ``neffK`` (information of at most K 
 removal after optimisation undone); ``A+B`` (both); ``ownC`` (DCS Phi = C x the loop's own-fit chi2);
 ``phiC`` (DCS Phi = C x 3N instead of the run's).
 """
-import pickle
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))  # replay.py
-from replay import is_loop, kf_poses, replay  # noqa: E402
+from replay import gt_pose_at, is_loop, kf_poses, load_kept, replay  # noqa: E402
 
-from gsslam.factors import to_matrix  # noqa: E402
 from gsslam.geometry import invert_T, split_sim3, transform_points  # noqa: E402
-from gsslam.graph.keys import submap_key  # noqa: E402
 
-st = pickle.load(open(sys.argv[1], "rb"))
-gt, ts = st["gt"], st["ts"]
-KEY2SUB = {submap_key(j): j for j in range(len(st["frame_indices"]))}
+st, gt, KEY2SUB = load_kept(sys.argv[1])
+ts = st["ts"]
 
 
 def gt_at(t):
-    i = np.clip(np.searchsorted(gt.timestamps, t), 0, len(gt.timestamps) - 1)
-    return gt.poses[i]
+    return gt_pose_at(gt, t)
 
 
 def rot_err(i, m, T_i_m):

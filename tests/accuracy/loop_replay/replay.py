@@ -1,5 +1,5 @@
 """Replay a run's graph log with the loop factors modified; keyframe ATE before/after batch."""
-import pickle, sys, numpy as np
+import pickle, numpy as np
 import gtsam
 from gsslam.config import load_config
 from gsslam.graph.backend import Backend
@@ -8,6 +8,18 @@ from gsslam.graph.keys import submap_key
 from gsslam.factors import to_matrix, to_gtsam
 from gsslam.eval.ate import compute_ate
 from gsslam.types import Trajectory
+
+
+def load_kept(path):
+    """A kept run (``st``), its ground truth and the graph key -> submap index map."""
+    st = pickle.load(open(path, "rb"))
+    return st, st["gt"], {submap_key(j): j for j in range(len(st["frame_indices"]))}
+
+
+def gt_pose_at(gt, t):
+    """The ground-truth pose at (or right after) timestamp ``t``."""
+    i = np.clip(np.searchsorted(gt.timestamps, t), 0, len(gt.timestamps) - 1)
+    return gt.poses[i]
 
 
 def kept_encodings(st):

@@ -5,7 +5,6 @@ the ground truth and replays of a run kept by exp.py with the mono loop weight c
 ``PYTHONPATH=. python rexp2.py PKL VARIANT ...``      keyframe ATE before / after the batch per variant
 ``PYTHONPATH=. python rexp2.py PKL submaps VARIANT``  per-submap rotation / scale error vs ground truth
 """
-import pickle
 import sys
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import gtsam
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))  # replay.py
-from replay import is_loop, kf_poses, replay  # noqa: E402
+from replay import gt_pose_at, is_loop, load_kept, replay  # noqa: E402
 
 from gsslam.factors import make_relative_point_factor, to_matrix  # noqa: E402
 from gsslam.factors.loop_points import relative_point_residual  # noqa: E402
@@ -21,14 +20,12 @@ from gsslam.factors._lie import fill, read_transform  # noqa: E402
 from gsslam.geometry import invert_T, transform_points, umeyama  # noqa: E402
 from gsslam.graph.keys import submap_key  # noqa: E402
 
-st = pickle.load(open(sys.argv[1], "rb"))
-gt, ts = st["gt"], st["ts"]
-KEY2SUB = {submap_key(j): j for j in range(len(st["frame_indices"]))}
+st, gt, KEY2SUB = load_kept(sys.argv[1])
+ts = st["ts"]
 
 
 def gt_at(t):
-    i = np.clip(np.searchsorted(gt.timestamps, t), 0, len(gt.timestamps) - 1)
-    return gt.poses[i]
+    return gt_pose_at(gt, t)
 
 
 mpl = []  # metres per local unit of each submap, from its keyframe translations

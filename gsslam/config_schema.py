@@ -189,7 +189,7 @@ class MapperConfig:
     pose_prior_rel: float = 0.01  # prior std: rad, and this x median keyframe depth for translation
     pose_min_gain: float = 0.05  # pose-only refinement kept only if it lowers its loss by this fraction
     pose_init_prior: float = 1.0  # share of the pose prior used in that pose-only refinement
-    registration_feedback: bool = True  # new keyframes registered against the converged map -> graph factors (mono runs; RGB-D: + the key below)
+    registration_feedback: bool = False  # new keyframes registered against the converged map -> graph factors (mono runs; RGB-D: + the key below); off since session 11
     registration_feedback_rgbd: bool = False  # RGB-D runs register too (teddy 200 RGB-D: 0.91 -> 1.34 cm with it; docs/mapping.md)
     registration_iterations: int = 5  # robust Gauss-Newton steps of each registration
     registration_jacobian: str = "central"  # pose Jacobian: "central" differences (13 renders), "warp" of one render, "subpixel" (warp, exact slopes: 3)

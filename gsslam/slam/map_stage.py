@@ -8,7 +8,7 @@ Per new submap (after the graph update and loop closure):
    T_local_cam``, the point map in submap units, its confidence) and the cross-submap flows that the
    pipeline computed for the graph (GaussianFlow supervision), then runs ``optimize`` on the window.
 3. Feedback (SING3R: "optimized depths/poses feed back into the forming of the next submaps"; both
-   switches are in the mapper config; registration is on by default in mono runs (RGB-D: ``mapper.registration_feedback_rgbd``), the depth
+   switches are in the mapper config; registration (off by default since session 11) acts in mono runs (RGB-D: + ``mapper.registration_feedback_rgbd``), the depth
    paths off; docs/mapping.md):
    :meth:`MapStage.shared_depth` gives the rendered depth of the shared keyframe, in the units of the
    submap that owns it, as ``shared_depth`` for the next encoding (``mapper.shared_depth_feedback``);

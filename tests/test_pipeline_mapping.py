@@ -54,7 +54,8 @@ IN_FINAL_PASS: set[tuple[tuple[str, ...], int, int]] = set()  # (Python threads,
 def _stage(*a) -> None:
     STAGES.append(a)
     if a[0] == "final pass":
-        names = tuple(sorted(t.name for t in threading.enumerate()))
+        # the run's threads; tqdm's monitor is left by earlier tests of the same process (a progress bar)
+        names = tuple(sorted(t.name for t in threading.enumerate() if t.name != "tqdm_monitor"))
         IN_FINAL_PASS.add((names, torch.get_num_threads(), rasterize_cpu.band_threads()))
 
 

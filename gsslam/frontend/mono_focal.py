@@ -111,20 +111,31 @@ def _init_poses(K: np.ndarray, win: TrackWindow):  # -> (T_i_0 [W, 4, 4], rho [N
             continue
         idx = np.flatnonzero(ok)[keep]
         X = X[keep]
-        T = np.tile(np.eye(4), (n, 1, 1))
-        T[r] = tv.T_b_a
-        for i in range(1, n):
-            if i == r:
-                continue
-            seen = np.isfinite(win.obs[i, idx]).all(1)
-            res = pnp(X[seen], win.obs[i, idx[seen]], K, 2.0 * THRESHOLD_PX, MIN_TRACKS)
-            if res.T_tgt_src is None:
-                return None
-            T[i] = res.T_tgt_src
+        T = _pnp_others(K, win, r, tv.T_b_a, X, idx)
+        if T is None:  # the two-view points do not explain another view: a wrong pair, try a nearer one
+            continue
         mask = np.zeros(len(win.uv0), bool)
         mask[idx] = True
         return T, 1.0 / X[:, 2], mask
     return _rotation_init(K, win)
+
+
+def _pnp_others(
+    K: np.ndarray, win: TrackWindow, r: int, T_r_0: np.ndarray, X: np.ndarray, idx: np.ndarray
+) -> np.ndarray | None:  # T_i_0 [W, 4, 4]
+    """Every view but 0 and ``r`` posed by PnP on the points triangulated from views 0 and ``r``."""
+    n = len(win.obs)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[r] = T_r_0
+    for i in range(1, n):
+        if i == r:
+            continue
+        seen = np.isfinite(win.obs[i, idx]).all(1)
+        res = pnp(X[seen], win.obs[i, idx[seen]], K, 2.0 * THRESHOLD_PX, MIN_TRACKS)
+        if res.T_tgt_src is None:
+            return None
+        T[i] = res.T_tgt_src
+    return T
 
 
 def _rotation_init(K: np.ndarray, win: TrackWindow):  # -> (T_i_0 [W, 4, 4], rho [N], mask [N]) or None

@@ -66,7 +66,9 @@ def test_profile_minimum_at_true_focal_on_exact_tracks(focal_scale):
 def test_wrong_focal_of_a_room_scan_found_from_flow():
     frames = _room(KINECT)
     est = mf.estimate_mono_focal(frames, make_flow_estimator(FlowConfig()), **FAST)
-    # measured 0.920 for the true 0.898 (DIS flow leaves a +2.5 % bias, also on teddy); gain 0.40
+    # measured 0.920 for the true 0.898 (DIS flow leaves a +2.5 % bias, also on teddy); gain 0.39. With
+    # opencv 4.14 the third window's farthest pair triangulates points that PnP cannot fit (20 of 257
+    # inliers); the nearer pair it then tries is right (window scale 0.917)
     assert est.ok and est.windows == 3 and est.gain > 0.2, est
     assert abs(est.scale * KINECT - 1.0) < 0.04, est
     scale, _ = mf.mono_focal_correction(frames, make_flow_estimator(FlowConfig()), EncoderConfig())

@@ -41,8 +41,8 @@ def _split(orig):
         kfs = set(poses_mod.keyframe_poses(p))
         variants = {}
         for mc in (False, True):
-            bad = find_pose_outliers(raw, kfs, p.timestamps, pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg,
-                                     motion_check=mc)  # fmt: skip
+            dev = (pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg)
+            bad = find_pose_outliers(raw, kfs, p.timestamps, *dev, motion_check=mc)
             v = {f: T for f, T in raw.items() if f not in bad}
             v.update(interpolate_poses(v, bad, p.timestamps))
             variants[mc] = (dict(sorted(v.items())), bad)
@@ -75,9 +75,9 @@ def main() -> None:
     from gsslam.cli import app
 
     try:
-        app(["batch", str(out / "manifest.yaml"), "--jobs", "1", "--data-root", a.data_root, "--out", str(out / "b")]
-            + (["--max-frames", str(a.max_frames)] if a.max_frames else []),
-            standalone_mode=False)  # fmt: skip
+        args = ["batch", str(out / "manifest.yaml"), "--jobs", "1", "--data-root", a.data_root]
+        args += ["--out", str(out / "b")] + (["--max-frames", str(a.max_frames)] if a.max_frames else [])
+        app(args, standalone_mode=False)
     except SystemExit:
         pass
     from gsslam.datasets.base import open_dataset

@@ -55,7 +55,12 @@ def report(path: str) -> dict:
         if name == "line":
             res["line_reproduces_run"] = all(np.allclose(poses[f], T) for f, T in st["frames"].items())
         res[name] = round(100 * ate(poses).stats.rmse, 3)
-        cm = lambda T, f: round(100 * float(np.linalg.norm(al.apply_positions(T[None, :3, 3])[0] - gt_of(f)[:3, 3])), 2)  # noqa: E731
+
+        def cm(T, f):
+            return round(
+                100 * float(np.linalg.norm(al.apply_positions(T[None, :3, 3])[0] - gt_of(f)[:3, 3])), 2
+            )
+
         res[f"{name}_flagged"] = {f: (cm(T, f), cm(poses[f], f)) for f, T in flagged if gt_of(f) is not None}
     return res
 
@@ -63,7 +68,10 @@ def report(path: str) -> dict:
 def main(argv: list[str]) -> int:
     table = "--table" in argv
     if table:
-        print("| run | no check | as was (line) | motion_check | motion / as was | flagged as was: tracked -> replaced cm | flagged with motion_check |")
+        print(
+            "| run | no check | as was (line) | motion_check | motion / as was "
+            "| flagged as was: tracked -> replaced cm | flagged with motion_check |"
+        )
         print("|---" * 7 + "|")
     for p in (a for a in argv if a != "--table"):
         r = report(p)
@@ -72,7 +80,9 @@ def main(argv: list[str]) -> int:
             continue
         fl = lambda d: ", ".join(f"{f}: {a:.2f} -> {b:.2f}" for f, (a, b) in d.items()) or "-"  # noqa: E731
         d = 100 * (r["motion"] / r["line"] - 1)
-        print(f"| {r['run']} | {r['off']:.3f} | {r['line']:.3f} | **{r['motion']:.3f}** | {d:+.1f} % | {fl(r['line_flagged'])} | {fl(r['motion_flagged'])} |")
+        cells = [r["run"], f"{r['off']:.3f}", f"{r['line']:.3f}", f"**{r['motion']:.3f}**", f"{d:+.1f} %"]
+        cells += [fl(r["line_flagged"]), fl(r["motion_flagged"])]
+        print("| " + " | ".join(cells) + " |")
     return 0
 
 

@@ -24,7 +24,9 @@ def test_smooth_motion_has_no_outliers():
 
 def test_a_frame_off_by_centimetres_or_degrees_is_found():
     poses, ts, kfs = _path()
-    poses[8] = poses[8] @ make_T(np.eye(3), np.array([0.0, 0.06, 0.0]))  # 6 cm off (the teddy outliers: 9-15 cm)
+    poses[8] = poses[8] @ make_T(
+        np.eye(3), np.array([0.0, 0.06, 0.0])
+    )  # 6 cm off (the teddy outliers: 9-15 cm)
     poses[21] = poses[21] @ make_T(so3_exp(np.array([0.0, 0.0, np.radians(8.0)])), np.zeros(3))
     poses[2] = poses[2] @ make_T(np.eye(3), np.array([0.0, 0.01, 0.0]))  # 1 cm: within the bound
     assert find_pose_outliers(poses, kfs, ts) == [8, 21]
@@ -43,8 +45,8 @@ def _reversal(noise_m=0.003, seed=0):
     # tracks 3 mm off the truth; keyframes 19 and 22 around the turn, as on that row (63 | 64 65 | 66)
     rng = np.random.default_rng(seed)
     x = [0.037 * i if i <= 20 else 0.037 * (40 - i) for i in range(40)]
-    truth = {i: make_T(so3_exp(np.array([0.0, np.radians(0.2) * x[i] / 0.037, 0.0])), np.array([x[i], 0.0, 0.0]))
-             for i in range(40)}  # fmt: skip
+    yaw = [np.radians(0.2) * xi / 0.037 for xi in x]  # the camera pans with it
+    truth = {i: make_T(so3_exp(np.array([0.0, yaw[i], 0.0])), np.array([x[i], 0.0, 0.0])) for i in range(40)}
     poses = {i: T @ make_T(np.eye(3), rng.normal(0.0, noise_m, 3)) for i, T in truth.items()}
     return truth, poses, {i: 0.033 * i for i in range(40)}, {0, 4, 8, 12, 16, 19, 22, 26, 30, 34, 39}
 
@@ -64,7 +66,10 @@ def test_a_smooth_turn_is_kept():
     # a hand-held sweep back and forth (10 cm amplitude, 1.3 s period at 30 fps: up to 1.6 cm per frame),
     # keyframes 14 frames apart: the 9 frames of each turn leave the keyframes' line, not their neighbours'
     n = 80
-    path = {i: make_T(np.eye(3), np.array([0.1 * np.sin(2 * np.pi * (i + 0.3) / 40.0), 0.0, 0.0])) for i in range(n)}
+    path = {
+        i: make_T(np.eye(3), np.array([0.1 * np.sin(2 * np.pi * (i + 0.3) / 40.0), 0.0, 0.0]))
+        for i in range(n)
+    }
     ts = {i: i / 30.0 for i in range(n)}
     kfs = set(range(0, n, 14)) | {n - 1}
     assert len(find_pose_outliers(path, kfs, ts)) >= 9  # the line is wrong there

@@ -21,9 +21,9 @@ forward-backward, the frames at the playback's direction reversals were 3.3 cm o
 of the frames around it (:func:`agrees_with_motion`): a failed track is isolated, a curved path is not.
 A flagged frame within ``max_dev_m`` / ``max_dev_deg`` of the constant-velocity prediction from the two
 unflagged frames before it, or of that from the two after it, keeps its pose. On the same runs the
-reversal frames were 0.5-0.7 cm from those predictions, the failed tracks (teddy 200 and its
-forward-backward playback) 10-16 cm from both (docs/results.md, "The pose-outlier check at direction
-reversals, session 12").
+reversal frames were 0.5-0.7 cm from those predictions, the failed tracks (teddy 200, its
+forward-backward playback and the 3x row) 10-16 cm from both (docs/results.md, "The pose-outlier check
+at direction reversals, session 12").
 """
 
 from __future__ import annotations

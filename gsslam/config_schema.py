@@ -263,6 +263,7 @@ class PipelineConfig:
     max_time_gap_s: float = 0.5  # a longer gap between frames is an event; mono starts a new chain there
     pose_outlier_max_dev_m: float = 0.02  # non-keyframe this far (+ half its keyframes' gap) off their path: interpolated (0: off)
     pose_outlier_max_dev_deg: float = 3.0  # the same for the rotation (+ half the keyframes' rotation)
+    pose_outlier_motion_check: bool = True  # ... unless it lies within pose_outlier_max_dev_m / _deg of the constant-velocity prediction from the two frames before it or the two after it (a curved path or a direction reversal, not a failed track; frontend/pose_outliers.py, docs/results.md session 12)
     track_icp: bool = False  # RGB-D: refine each tracked frame's PnP pose by ICP against its keyframe's depth
     track_icp_fallback: bool = True  # RGB-D: a frame whose PnP is refused even after a promoted keyframe (track_icp_promote_first) is tracked by ICP on depth (from the ungated PnP pose or a constant-velocity prediction) instead of failing (session 8: on; docs/results.md)
     track_icp_promote_first: bool = True  # RGB-D ICP fallback only where promoting the last tracked frame to a keyframe and retrying PnP cannot help (the retry, or no frame to promote): the keyframe set stays that of PnP tracking (false: ICP at once, session 7: +15 % on teddy200_fbf_7scenes loops on, docs/results.md)

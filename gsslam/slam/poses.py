@@ -3,10 +3,12 @@
 A keyframe's pose is its graph's estimate; a non-keyframe's is its tracked pose relative to its
 keyframe (PnP on the keyframe's depth: sensor depth in RGB-D, the submap's point map in mono) composed
 with the keyframe's pose; a frame whose PnP fails, or whose pose leaves its keyframes' path, is
-interpolated in time. With ``pipeline.frame_pose_blend`` (RGB-D) a non-keyframe between keyframes A and B
-is posed from both (:func:`blend_between`). ``p`` is a :class:`gsslam.slam.pipeline.Pipeline`; these
-functions read its public state (``cfg``, ``intrinsics``, ``monocular``, ``chains``, ``keyframes``,
-``relative``, ``keyframe_relative``, ``pending``, ``window``, ``timestamps``, ``online_poses``).
+interpolated in time (unless it follows the motion of the frames around it: a curved path, not a failed
+track; ``pipeline.pose_outlier_motion_check``). With ``pipeline.frame_pose_blend`` (RGB-D) a non-keyframe
+between keyframes A and B is posed from both (:func:`blend_between`). ``p`` is a
+:class:`gsslam.slam.pipeline.Pipeline`; these functions read its public state (``cfg``, ``intrinsics``,
+``monocular``, ``chains``, ``keyframes``, ``relative``, ``keyframe_relative``, ``pending``, ``window``,
+``timestamps``, ``online_poses``).
 """
 
 from __future__ import annotations
@@ -187,7 +189,12 @@ def frame_poses(p) -> tuple[dict[int, np.ndarray], int | None]:
         from gsslam.frontend.pose_outliers import find_pose_outliers
 
         bad = find_pose_outliers(
-            out, set(kf_poses), p.timestamps, pc.pose_outlier_max_dev_m, pc.pose_outlier_max_dev_deg
+            out,
+            set(kf_poses),
+            p.timestamps,
+            pc.pose_outlier_max_dev_m,
+            pc.pose_outlier_max_dev_deg,
+            motion_check=pc.pose_outlier_motion_check,
         )
         for f in bad:
             out.pop(f)

@@ -14,6 +14,19 @@
 focal lengths times this (a mis-calibrated camera, e.g. 1.114 as the 7-Scenes loader hands out the
 depth camera's 585 px for a 525 px colour camera); the frames are rendered with the true ones, and
 the depth stays the true depth (a mono run reads no depth).
+
+What a hand-held Kinect v1 adds (each ``None`` by default: exact frames; docs/evaluation.md, "A long
+synthetic room"):
+
+- ``sensor``: ``"kinect_v1"`` or a dict of :class:`~gsslam.datasets.depth_sensor.KinectV1`'s fields:
+  depth noise ~ z^2, disparity quantization, holes (range, grazing angles, depth edges), drawn from
+  ``seed`` and the frame index, in the depth camera's grid.
+- ``misregister``: a dict as the ``playback`` dataset's (:mod:`gsslam.datasets.misregistered`): the
+  exact depth is first re-rendered into a depth camera ``baseline_m`` beside the colour camera with
+  focal lengths ``focal_scale`` times longer, handed out at the colour pixels; ``report: depth`` hands
+  out the depth camera's intrinsics for colour too (as 7-Scenes does; then ``focal_scale`` must be 1).
+- ``degrade``: a dict as the ``playback`` dataset's (:mod:`gsslam.datasets.degraded`): motion blur
+  along the exact motion to the neighbouring frames (from the exact depth) and exposure swings.
 """
 
 from __future__ import annotations
@@ -24,16 +37,20 @@ from typing import Any
 import numpy as np
 import yaml
 
+from gsslam.datasets.degraded import Degradation, apply_exposure, exposure_ends, motion_blur
+from gsslam.datasets.depth_sensor import KinectV1, kinect_v1_depth
+from gsslam.datasets.misregistered import Misregistration, misregister_depth
 from gsslam.datasets.synthetic.presets import PRESETS
 from gsslam.datasets.synthetic.scene import SceneError
-from gsslam.datasets.synthetic.trajectories import orbit, sway_line
+from gsslam.datasets.synthetic.trajectories import orbit, room_walk, sway_line
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
-# name -> (n_frames, arc_deg, motion_scale) -> T_world_cam [N, 4, 4]; add a path here to offer it
+# name -> (n_frames, arc_deg, motion_scale, seed) -> T_world_cam [N, 4, 4]; add a path here to offer it
 TRAJECTORIES = {
-    "orbit": lambda n, arc_deg, s: orbit(n, arc_deg, s),
-    "line": lambda n, arc_deg, s: sway_line(n, s),
-    "loop": lambda n, arc_deg, s: orbit(n, 360.0, s),
+    "orbit": lambda n, arc_deg, s, seed: orbit(n, arc_deg, s),
+    "line": lambda n, arc_deg, s, seed: sway_line(n, s),
+    "loop": lambda n, arc_deg, s, seed: orbit(n, 360.0, s),
+    "room_walk": lambda n, arc_deg, s, seed: room_walk(n, s, seed),
 }
 _PARAMS = (
     "n_frames",
@@ -46,6 +63,9 @@ _PARAMS = (
     "arc_deg",
     "fps",
     "focal_scale",
+    "sensor",
+    "misregister",
+    "degrade",
 )
 
 
@@ -72,6 +92,9 @@ class SyntheticDataset:
         fps: float = 30.0,
         scene: str = "room",
         focal_scale: float = 1.0,
+        sensor: str | dict[str, Any] | None = None,
+        misregister: dict[str, Any] | None = None,
+        degrade: dict[str, Any] | None = None,
     ) -> None:
         params: dict[str, Any] = dict(
             n_frames=n_frames,
@@ -84,6 +107,9 @@ class SyntheticDataset:
             arc_deg=arc_deg,
             fps=fps,
             focal_scale=focal_scale,
+            sensor=sensor,
+            misregister=misregister,
+            degrade=degrade,
         )
         if path is not None:
             params.update(self._read_params(Path(path)))
@@ -112,9 +138,18 @@ class SyntheticDataset:
         self.true_intrinsics = CameraIntrinsics(f, f, (w - 1) / 2.0, (h - 1) / 2.0, w, h)  # renders
         fr = f * focal_scale
         self.intrinsics = CameraIntrinsics(fr, fr, (w - 1) / 2.0, (h - 1) / 2.0, w, h)  # handed out
-        self.scene = PRESETS[params["scene"]](seed=int(params["seed"]))
+        self.seed = int(params["seed"])
+        self.sensor = KinectV1.from_spec(params["sensor"])
+        self.misregistration = Misregistration.from_dict(params["misregister"])
+        self.degradation = Degradation.from_dict(params["degrade"])
+        if self.misregistration is not None:
+            if focal_scale != 1.0 and self.misregistration.report == "depth":
+                raise SyntheticDatasetError("give focal_scale or misregister.report=depth, not both")
+            if self.misregistration.report == "depth":
+                self.intrinsics = self.misregistration.depth_intrinsics(self.true_intrinsics)
+        self.scene = PRESETS[params["scene"]](seed=self.seed)
         self._poses = TRAJECTORIES[self.trajectory](
-            self.n_frames, float(params["arc_deg"]), self.motion_scale
+            self.n_frames, float(params["arc_deg"]), self.motion_scale, self.seed
         )
 
     @staticmethod
@@ -149,6 +184,7 @@ class SyntheticDataset:
             raise IndexError(f"frame {index} out of range for {self.n_frames} frames")
         index = index % self.n_frames
         image, depth = self.render(self._poses[index])
+        image, depth = self._as_captured(index, image, depth)
         return Frame(
             index=index,
             timestamp=index / self.fps,
@@ -157,6 +193,27 @@ class SyntheticDataset:
             depth=depth,
             T_world_cam_gt=self._poses[index].copy(),
         )
+
+    def _as_captured(
+        self, index: int, image: np.ndarray, depth: np.ndarray  # [H, W, 3], [H, W] exact
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The frame as the hand-held sensor hands it out (module docstring); unchanged by default."""
+        deg, mr = self.degradation, self.misregistration
+        if deg is not None:
+            if deg.blurs:
+                prev = self._poses[index - 1] if index > 0 else None
+                nxt = self._poses[index + 1] if index + 1 < self.n_frames else None
+                ends = exposure_ends(deg, prev, self._poses[index], nxt)
+                image = motion_blur(image, depth, self.true_intrinsics, ends, deg.blur_samples)
+            image = apply_exposure(image, deg.gain(index))
+        depth_intr = self.true_intrinsics
+        if mr is not None:
+            depth = misregister_depth(depth, self.true_intrinsics, mr.baseline_m, mr.focal_scale)
+            depth_intr = mr.depth_intrinsics(self.true_intrinsics)
+        if self.sensor is not None:
+            rng = np.random.default_rng([self.seed, index, 1])
+            depth = kinect_v1_depth(depth, depth_intr, self.sensor, rng)
+        return image, depth
 
     def render(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ray-cast the scene from ``T_world_cam`` [4, 4] -> (image [H, W, 3], depth [H, W] float32)."""

@@ -8,6 +8,10 @@
   frontend encoder tests; nothing behind the camera (depth NaN there).
 - ``cylinder``: the inside of a vertical cylinder, plain unless a texture is given; the graph
   tests' submap chains (only the point maps matter there).
+- ``furnished_room``: a 4.8 x 2.6 x 4.8 m office-sized box (value-noise walls) with three spheres on
+  the floor near the centre and panels against the walls (a table top, a tilted board, two cabinet
+  fronts): depth edges and parallax everywhere, far corners beyond a Kinect v1's 4 m; the
+  ``room_walk`` path's scene.
 
 A new preset is a function returning a ``Scene``, added to ``PRESETS``.
 """
@@ -82,6 +86,37 @@ def planes(seed: int = 0) -> Scene:
     )
 
 
+FURNISHED_HALF = np.array([2.4, 1.3, 2.4])  # ``furnished_room``'s half extents (x, y, z), metres
+
+
+def furnished_room(seed: int = 0) -> Scene:
+    rng = np.random.default_rng(seed)
+    he = FURNISHED_HALF
+    textures = []
+    for f in range(6):
+        a, b = [ax for ax in range(3) if ax != f // 2]
+        textures.append(ImageTexture(value_noise(rng, TEXTURE_SIZE), (2 * he[a], 2 * he[b])))
+    box = Box(he, textures, rng.uniform(0.75, 1.0, size=6).astype(np.float32))
+    surfaces: list = [box]
+    for k in range(3):  # on the floor (y = he[1]), within 0.45 m of the centre: below the camera's path
+        ang = 2.1 * k + float(rng.uniform(0.0, 0.6))
+        r = float(rng.uniform(0.18, 0.26))
+        d = float(rng.uniform(0.15, 0.3))
+        c = np.array([d * np.cos(ang), he[1] - r, d * np.sin(ang)])
+        surfaces.append(Sphere(c, r, ImageTexture(value_noise(rng, TEXTURE_SIZE // 2), (1.0, 1.0))))
+    ex, ey, ez = np.eye(3)
+    lean = np.array([0.0, -0.9, -0.44]) / np.hypot(0.9, 0.44)
+    layout = [  # (corner, axis u, axis v, extent u, extent v): 0.3-0.6 m in front of a wall
+        (np.array([-0.8, 0.55, 1.6]), ex, ez, 1.4, 0.6),  # a table top 0.75 m above the floor
+        (np.array([1.9, -0.6, -1.2]), ez, ey, 1.0, 1.9),  # a cabinet front facing -x
+        (np.array([-1.8, -0.9, 0.2]), -ez, ey, 0.9, 2.2),  # a cabinet front facing +x
+        (np.array([-0.5, 1.3, -1.6]), ex, lean, 1.2, 1.2),  # a board on the floor leaning towards -z
+    ]
+    for corner, u, v, eu, ev in layout:
+        surfaces.append(Rectangle(corner, u, v, (eu, ev), ImageTexture(smooth_noise(rng), (eu, ev))))
+    return Scene(surfaces, room=box)
+
+
 def cylinder(radius: float = 10.0, texture=None) -> Scene:
     return Scene([Cylinder(radius, texture or ConstantTexture())])
 
@@ -91,4 +126,5 @@ PRESETS: dict[str, Callable[..., Scene]] = {
     "block_room": block_room,
     "planes": planes,
     "cylinder": cylinder,
+    "furnished_room": furnished_room,
 }

@@ -7,6 +7,11 @@
   (more than one turn revisits the start: loop closure).
 - ``wall_scan``: a sideways scan along x in front of the ``z = wall_z`` wall (never revisits).
 - ``forward_motion``: sideways + forward with a slow yaw (parallax); ``pure_rotation``: no baseline.
+- ``room_walk``: a hand-held walk around the centre of ``furnished_room`` (``ROOM_WALK`` below):
+  three quarters of a loop looking at the walls, a stop and turn, back half a loop looking across the
+  room at the far walls and the objects, a quick lower loop looking ahead, a second reversal and a slow
+  end that sees the first views again; speeds 0-20 mm/frame (~11 m over 1000 frames), smooth hand
+  shake drawn from ``seed``. Places are revisited from other positions and directions.
 
 Building blocks for new paths: ``look_at(eye, target)`` and ``yaw_pose(position, yaw, pitch)``.
 """
@@ -16,6 +21,52 @@ from __future__ import annotations
 import numpy as np
 
 from gsslam.geometry import make_T, so3_exp
+
+
+# room_walk waypoints: (time in [0, 1], angle on the circle / pi, yaw offset from outward (rad),
+# radius m, height y m (down), pitch rad (> 0 up)); monotone cubic (PCHIP) in between, so every
+# reversal of the angle is a smooth stop. Yaw offset 0 looks at the wall behind the circle, pi across
+# the room, pi / 2 ahead when the angle grows.
+ROOM_WALK = np.array([
+    (0.00, 0.00, 0.00, 0.65, -0.15, -0.10),
+    (0.10, 0.45, 0.25, 0.75, -0.25, -0.05),
+    (0.20, 0.95, -0.20, 0.60, -0.10, -0.15),
+    (0.30, 1.50, 0.10, 0.70, -0.20, -0.10),
+    (0.33, 1.55, 1.60, 0.70, -0.20, -0.20),  # slows down and turns round
+    (0.36, 1.50, 3.14, 0.70, -0.15, -0.30),  # reversal, looking across the room at the objects
+    (0.46, 1.00, 3.44, 0.80, -0.30, -0.35),
+    (0.56, 0.30, 2.94, 0.70, -0.10, -0.25),
+    (0.60, 0.30, 1.90, 0.70, 0.00, -0.20),  # turns to look ahead
+    (0.70, 0.90, 1.20, 0.85, 0.15, -0.10),  # lower (crouching), quicker
+    (0.78, 1.60, 0.90, 0.60, -0.30, 0.00),
+    (0.86, 2.30, 0.40, 0.70, -0.20, -0.10),  # second reversal
+    (0.93, 2.20, 0.00, 0.65, -0.15, -0.10),  # slow, looking at the walls of the start again
+    (1.00, 1.95, -0.20, 0.60, -0.10, -0.10),
+])
+
+
+def room_walk(n: int, motion_scale: float = 1.0, seed: int = 0) -> np.ndarray:
+    from scipy.interpolate import PchipInterpolator
+
+    t = _unit_steps(n)
+    w = ROOM_WALK
+    a, off, r, y, pitch = (PchipInterpolator(w[:, 0], w[:, c])(t) for c in range(1, 6))
+    a = a * np.pi
+    r = r * motion_scale
+    rng = np.random.default_rng(seed)
+    secs = t * (n - 1) / 30.0  # the shake's clock: 30 Hz frames
+    shake = np.zeros((n, 6))
+    for c, amp in enumerate((0.004, 0.004, 0.004, 0.003, 0.003, 0.002)):  # m x3, rad x3, per sinusoid
+        for _ in range(3):
+            f, ph = rng.uniform(0.3, 2.5), rng.uniform(0, 2 * np.pi)
+            shake[:, c] += amp * np.sin(2 * np.pi * f * secs + ph)
+    poses = []
+    for k in range(n):
+        p = np.array([r[k] * np.sin(a[k]), y[k], r[k] * np.cos(a[k])]) + shake[k, :3]
+        T = yaw_pose(p, a[k] + off[k], pitch[k])
+        T[:3, :3] = T[:3, :3] @ so3_exp(shake[k, 3:])
+        poses.append(T)
+    return np.stack(poses)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:  # -> T_world_cam [4, 4]

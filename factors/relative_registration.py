@@ -38,7 +38,7 @@ from ._lie import (
     so3_right_jacobian_inv,
 )
 from .errors import FactorInputError
-from .registration import _sqrt_information
+from .registration import sqrt_information_batch
 
 
 def make_relative_registration_factor(
@@ -58,7 +58,7 @@ def make_relative_registration_factor(
     info = check_shape("information", information, (len(Tl), 6, 6))
     if len(Tl) == 0:
         raise FactorInputError("relative registration factor: need at least one keyframe")
-    L = _sqrt_information(info)
+    L = sqrt_information_batch(info)
     Rl, tl = Tl[:, :3, :3], Tl[:, :3, 3]
     Rm, tm = Tm[:, :3, :3], Tm[:, :3, 3]
     n, d = len(Tl), group_dim(group)

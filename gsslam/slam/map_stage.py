@@ -62,10 +62,10 @@ class MapStage:
         self.n_registrations_withheld = 0  # registered, but Gauss-Newton did not reach the map's minimum
         self.withheld: list[Registration] = []  # the last call's (mapper.registration_unconverged_weight=0)
         self.pending: list[tuple[int, Registration]] = []  # (position in the new submap, registration)
-        # relative ones: position -> (owner submap, T_owner_cam rigid [4, 4] in owner units, info [6, 6])
-        self.pending_owner: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+        # relative ones: position -> [(owner submap, T_owner_cam rigid [4, 4] in owner units, info [6, 6])]
+        self.pending_owner: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
         self.n_registrations_relative = 0  # of the sent ones, relative to an owner submap
-        self.owner_shares: list[float] = []  # the owner's share of the converged view, per relative one
+        self.owner_shares: list[float] = []  # the owners' share of the converged view, per relative one
         self.pending_depth: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe -> (uv, depth)
         self.seconds = 0.0
         self.iterations = 0
@@ -223,25 +223,30 @@ class MapStage:
 
     def _find_owner(self, chains, cid: int, sid: int, pos: int, reg: Registration) -> None:
         """The registration relative to the submap (same chain, older) whose converged Gaussians carry most
-        of the registered view's rendered weight; kept in ``pending_owner`` (none: sent as absolute)."""
+        of the registered view's rendered weight; with ``mapper.registration_owner_split`` > 0, relative to
+        every such submap with at least that share, each with its share of the information (renormalised
+        over those kept). Kept in ``pending_owner`` (no owner: sent as absolute)."""
         where = {gid: cs for cs, gid in self._gid.items()}
-        best = None
+        owners = []  # (submap, share), largest share first
         shares = self.mapper.registration_owners(reg.T_world_cam)
         for gid, share in sorted(shares.items(), key=lambda x: -x[1]):
             c, s = where.get(gid, (-1, -1))
             if c == cid and s != sid and s < len(chains[c].encodings):
-                best = (s, share)
-                break
-        if best is None:
+                owners.append((s, share))
+        if not owners:
             return
-        s, share = best
-        S_wo = self._submap_pose(chains[cid], s)  # [4, 4] Sim(3) T_world_owner now (the map follows it)
-        M = np.linalg.inv(S_wo) @ reg.T_world_cam  # Sim(3) with scale 1 / s_wo: the camera in owner units
-        s_wo = sim3_scale(S_wo)
-        M[:3, :3] *= s_wo
-        D = np.diag([1.0, 1.0, 1.0] + [s_wo] * 3)  # owner translation = world translation / s_wo
-        self.pending_owner[pos] = (s, M, D @ reg.information @ D)
-        self.owner_shares.append(share)
+        split = self.cfg.registration_owner_split
+        kept = [o for o in owners if split > 0 and o[1] >= split] or owners[:1]
+        total = sum(share for _, share in kept)
+        self.pending_owner[pos] = []
+        for s, share in kept:
+            S_wo = self._submap_pose(chains[cid], s)  # [4, 4] Sim(3) T_world_owner now (the map follows it)
+            M = np.linalg.inv(S_wo) @ reg.T_world_cam  # Sim(3) with scale 1 / s_wo: the camera in owner units
+            s_wo = sim3_scale(S_wo)
+            M[:3, :3] *= s_wo
+            D = np.diag([1.0, 1.0, 1.0] + [s_wo] * 3)  # owner translation = world translation / s_wo
+            self.pending_owner[pos].append((s, M, (share / total) * D @ reg.information @ D))
+        self.owner_shares.append(total)
 
     def send_registrations(self, chain, sid: int) -> int:
         """The pending registrations as factors on submap ``sid`` of ``chain``: one per owner submap for the
@@ -249,16 +254,15 @@ class MapStage:
         if not self.pending:
             return 0
         n = len(self.pending)
-        owners: dict[int, list[int]] = {}
+        owners: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}  # owner -> [(position, T, info)]
         for pos, _ in self.pending:
-            if pos in self.pending_owner:
-                owners.setdefault(self.pending_owner[pos][0], []).append(pos)
-        for o, ps in owners.items():
-            rel = [self.pending_owner[p] for p in ps]
+            for o, T, info in self.pending_owner.get(pos, []):
+                owners.setdefault(o, []).append((pos, T, info))
+            self.n_registrations_relative += pos in self.pending_owner
+        for o, rel in owners.items():
             chain.graph.add_relative_registration(
-                o, sid, ps, np.stack([r[1] for r in rel]), np.stack([r[2] for r in rel])
+                o, sid, [r[0] for r in rel], np.stack([r[1] for r in rel]), np.stack([r[2] for r in rel])
             )
-            self.n_registrations_relative += len(ps)
         self.pending = [(p, r) for p, r in self.pending if p not in self.pending_owner]
         self.pending_owner = {}
         self.n_registrations += n

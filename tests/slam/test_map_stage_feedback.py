@@ -6,6 +6,7 @@ import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 from gsslam.config import MapperConfig
@@ -95,11 +96,13 @@ def test_unconverged_registrations_are_withheld_not_sent():
     assert stage.send_registrations(chain, 0) == 1 and len(sent["a"][1]) == 1
 
 
-def test_relative_registrations_go_to_their_owner_submap_in_its_units():
+@pytest.mark.parametrize("split", [0.0, 0.1])
+def test_relative_registrations_go_to_their_owner_submap_in_its_units(split):
     """mapper.registration_relative: a registration whose view is owned by submap 1 of the same chain
     (drawn at scale 2, shifted by (1, 0, 0) in the world) is sent as a relative factor (1 -> 4), the camera
     in submap 1's frame and units, translation information x 4; one whose owners are all in another chain
-    falls back to the absolute prior on submap 4."""
+    falls back to the absolute prior on submap 4. With mapper.registration_owner_split=0.1 submap 2 (share
+    0.2) gets a factor too, the information split 0.8 / 0.2."""
     from gsslam.mapping.registration import Registration
 
     S1 = np.diag([2.0, 2.0, 2.0, 1.0])
@@ -107,7 +110,7 @@ def test_relative_registrations_go_to_their_owner_submap_in_its_units():
     sent = {}
     graph = SimpleNamespace(
         submap_pose=lambda s: S1 if s == 1 else np.eye(4),
-        add_relative_registration=lambda o, sid, pos, T, info: sent.update(rel=(o, sid, pos, T, info)),
+        add_relative_registration=lambda o, sid, pos, T, I: sent.update({("rel", o): (o, sid, pos, T, I)}),
         add_registration=lambda sid, pos, T, info: sent.update(abs=(sid, pos)),
     )
     chain = SimpleNamespace(T_world_chain=np.eye(4), graph=graph, encodings=[None] * 5)
@@ -118,7 +121,9 @@ def test_relative_registrations_go_to_their_owner_submap_in_its_units():
             8: Registration(8, T_world_cam, info, 0.9, 0.03, 1e4, 10.0)}  # fmt: skip
     owners = {7: {10: 0.8, 11: 0.2}, 8: {12: 1.0}}  # mapper submap ids: 10 = (0, 1), 11 = (0, 2), 12 = (1, 0)
     stage, _ = _stage(torch.zeros(1, 1), torch.zeros(1, 1), 1.0)
-    stage.cfg = MapperConfig(registration_feedback=True, registration_relative=True)
+    stage.cfg = MapperConfig(
+        registration_feedback=True, registration_relative=True, registration_owner_split=split
+    )
     stage._gid = {(0, 1): 10, (0, 2): 11, (1, 0): 12}
     stage.mapper = SimpleNamespace(
         register=lambda frame, T_wc, pts, conf: regs[frame],
@@ -130,9 +135,17 @@ def test_relative_registrations_go_to_their_owner_submap_in_its_units():
                           confidence=[None] * 3)  # fmt: skip
     stage.pending = stage._register([chain], 0, 4, enc, {i: i for i in range(6, 9)}, [7, 8])
     assert stage.send_registrations(chain, 4) == 2
-    o, sid, pos, T, I = sent["rel"]
+    o, sid, pos, T, I = sent[("rel", 1)]
     assert (o, sid, pos) == (1, 4, [1]) and sent["abs"] == (4, [2])
     np.testing.assert_allclose(T[0][:3, 3], [1.0, 0.5, 0.0])  # ((3, 1, 0) - (1, 0, 0)) / 2
     np.testing.assert_allclose(T[0][:3, :3], np.eye(3))
-    np.testing.assert_allclose(np.diag(I[0]), [1.0, 2.0, 3.0, 16.0, 20.0, 24.0])
-    assert stage.n_registrations == 2 and stage.n_registrations_relative == 1 and stage.owner_shares == [0.8]
+    w = 0.8 if split else 1.0
+    np.testing.assert_allclose(np.diag(I[0]), w * np.array([1.0, 2.0, 3.0, 16.0, 20.0, 24.0]))
+    assert (("rel", 2) in sent) == bool(split)
+    if split:
+        o, sid, pos, T, I = sent[("rel", 2)]  # submap 2 at the world origin, scale 1
+        assert (o, sid, pos) == (2, 4, [1])
+        np.testing.assert_allclose(T[0][:3, 3], [3.0, 1.0, 0.0])
+        np.testing.assert_allclose(np.diag(I[0]), 0.2 * np.diag(info))
+    assert stage.n_registrations == 2 and stage.n_registrations_relative == 1
+    assert stage.owner_shares == pytest.approx([1.0 if split else 0.8])

@@ -35,7 +35,7 @@ from ._lie import (
 from .errors import FactorInputError
 
 
-def _sqrt_information(info: np.ndarray) -> np.ndarray:  # [N, 6, 6] -> [N, 6, 6] upper L, L^T L = info
+def sqrt_information_batch(info: np.ndarray) -> np.ndarray:  # [N, 6, 6] -> [N, 6, 6]: upper L, L^T L = info
     out = np.empty_like(info)
     for k, A in enumerate(info):
         A = 0.5 * (A + A.T)
@@ -60,7 +60,7 @@ def make_registration_factor(
     info = check_shape("information", information, (len(Tl), 6, 6))
     if len(Tl) == 0:
         raise FactorInputError("registration factor: need at least one keyframe")
-    L = _sqrt_information(info)
+    L = sqrt_information_batch(info)
     Rl, tl = Tl[:, :3, :3], Tl[:, :3, 3]
     Rm, tm = Tm[:, :3, :3], Tm[:, :3, 3]
     n, d = len(Tl), group_dim(group)

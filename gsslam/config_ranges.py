@@ -183,6 +183,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "mapper.registration_information_scale": POS,
     "mapper.registration_step_halvings": _ge(0),
     "mapper.registration_unconverged_weight": UNIT,
+    "mapper.registration_owner_split": UNIT,
     "mapper.feedback_min_age": _ge(0),
     "mapper.feedback_min_converged": UNIT,
     "mapper.final_max_iterations": _ge(0),

@@ -200,6 +200,8 @@ class MapperConfig:
     registration_information_scale: float = 1e-3  # discount for correlated pixel and map errors (docs)
     registration_step_halvings: int = 2  # a Gauss-Newton step that does not lower the robust cost is halved this often (1 render each)
     registration_unconverged_weight: float = 0.0  # information share sent when Gauss-Newton did not reach the map's minimum (0: not sent; 1: session 9)
+    registration_owner_split: float = 0.0  # relative: 0 = the largest owner carries it; > 0: every owner with this share or more, its share of the information
+    registration_relative: bool = False  # a registration constrains the keyframe relative to the submap owning most of the converged map it saw (moves with loops; docs/mapping.md)
     feedback_min_age: int = 16  # keyframes: feedback only from Gaussians seeded this long ago (0: all; docs)
     feedback_min_converged: float = 0.5  # least share of a view's rendered weight from those Gaussians
     num_threads: int = (

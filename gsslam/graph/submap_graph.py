@@ -192,6 +192,25 @@ class SubmapGraph:
         except ValueError as e:
             raise GraphError(f"registration on submap {submap}: {e}") from e
 
+    def add_relative_registration(
+        self, owner: int, submap: int, positions: list[int], T_owner_cam: np.ndarray, information: np.ndarray
+    ) -> int:
+        """Keyframe poses registered against the map of submap ``owner`` (rigid ``T_owner_cam`` [N, 4, 4] in
+        the owner's frame and units, ``information`` [N, 6, 6] over (phi, rho)) as one factor on the
+        owner's and the submap's variables: it moves with the owner
+        (:mod:`gsslam.factors.relative_registration`)."""
+        for s in (owner, submap):
+            if not 0 <= s < len(self._subs):
+                raise GraphError(f"registration names submap {s} but only {len(self._subs)} submaps exist")
+        L = np.array(self._subs[submap].T_local_cam, dtype=np.float64)[list(positions)]
+        U, _, Vt = np.linalg.svd(L[:, :3, :3])
+        L[:, :3, :3] = U @ Vt
+        try:
+            return self._add(spec("relative_registration", submap_key(owner), submap_key(submap), L,
+                                  T_owner_cam, information, "sim3"))  # fmt: skip
+        except ValueError as e:
+            raise GraphError(f"registration of submap {submap} against {owner}: {e}") from e
+
     def add_loop(
         self,
         i: int,

@@ -10,6 +10,8 @@ ones are the map of a region seen long ago, so evidence against them on a revisi
 - :func:`converged_share`: how much of a view the map covers and which share of the rendered weight
   there the converged Gaussians explain (rendered as a colour channel: no kernel change);
 - :func:`converged_view`: a :class:`MapState` whose model holds only them (the map is unchanged);
+- :func:`converged_owners`: which submaps' converged Gaussians explain a view, by share of the rendered
+  weight (the owners a relative registration is measured against, ``mapper.registration_relative``);
 - :func:`converged_depth`: rendered depths of the converged Gaussians alone at a pose (depth priors);
 - :func:`covered_depths`: well-covered pixels of any render and their depths.
 """
@@ -59,6 +61,43 @@ def converged_view(state: MapState, mask: torch.Tensor) -> MapState:
     if bool(mask.all()):
         return state
     return dataclasses.replace(state, model=state.model.select(mask))
+
+
+@torch.no_grad()
+def converged_owners(state: MapState, T_world_cam: np.ndarray) -> dict[int, float]:
+    """Share of the converged view's rendered weight (pixels with alpha > 0.9) per submap id, at the pose
+    ``T_world_cam`` [4, 4]: the submaps whose Gaussians a registration there was measured against.
+
+    Candidates are the submaps with a converged Gaussian centre in the view; their shares come from renders
+    of the converged Gaussians with one flag channel per candidate (three per render), so occlusion and
+    opacity count as in the registration's own render. Empty when nothing converged covers the view."""
+    mask = converged_mask(state, state.cfg.feedback_min_age)
+    m = state.model
+    if len(m) == 0 or not bool(mask.any()):
+        return {}
+    T = cam_world(state, T_world_cam)
+    view = m.select(mask)
+    Xc = view.means.detach() @ T[:3, :3].T + T[:3, 3]  # [M, 3]
+    z = Xc[:, 2]
+    uv = Xc[:, :2] / z.clamp(min=1e-6)[:, None] * torch.diagonal(state.K)[:2] + state.K[:2, 2]  # [M, 2]
+    W, H = state.intrinsics.width, state.intrinsics.height
+    inside = (z > 1e-3) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+    ids = torch.unique(view.submap_id[inside]).tolist()
+    shares: dict[int, float] = {}
+    for g in range(0, len(ids), 3):
+        group = ids[g : g + 3]
+        flags = torch.zeros(len(view), 3, device=view.means.device)  # [M, 3]
+        for c, i in enumerate(group):
+            flags[:, c] = (view.submap_id == i).float()
+        out = rasterize(view.means, view.quats, view.scales, view.opacities, flags, T, state.K, W, H,
+                        backend=state.backend)  # fmt: skip
+        covered = out.alpha > 0.9
+        total = float(out.alpha[covered].sum())
+        if total <= 0:
+            return {}
+        for c, i in enumerate(group):
+            shares[int(i)] = float(out.color[..., c][covered].sum()) / total
+    return shares
 
 
 def cam_world(state: MapState, T_world_cam: np.ndarray) -> torch.Tensor:  # [4, 4] Sim(3) -> rigid T_cam_world

@@ -37,7 +37,7 @@ from gsslam.config import MapperConfig
 from gsslam.geometry import invert_T, split_sim3
 from gsslam.mapping import exposure as X
 from gsslam.mapping import final_pass, outputs
-from gsslam.mapping.converged import covered_depths
+from gsslam.mapping.converged import converged_owners, covered_depths
 from gsslam.mapping.densify import DensifyStrategy
 from gsslam.mapping.gaussians import GaussianModel
 from gsslam.mapping.keyframes import MapperError, make_keyframe, resize, resolve_device, torch_threads
@@ -167,6 +167,12 @@ class GaussianMapper:
         kf.exposure = outputs.frame_exposure(self.map, frame.index)  # the nearest keyframe's (None: identity)
         with torch_threads(self.cfg.num_threads):
             return register(self.map, kf, self.cfg.registration_iterations)
+
+    def registration_owners(self, T_world_cam: np.ndarray) -> dict[int, float]:
+        """Submap id -> share of the converged map's rendered weight at ``T_world_cam`` [4, 4] (a registered
+        pose): which submaps own what it was registered against (:func:`converged_owners`)."""
+        with torch_threads(self.cfg.num_threads):
+            return converged_owners(self.map, T_world_cam)
 
     def add_flow(
         self,

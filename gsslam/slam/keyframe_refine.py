@@ -16,7 +16,8 @@ correct an error *inside* a submap. This stage runs once per chain after the fin
   goes to the keyframe whose point map holds it (the view whose depth at the point's pixel is closest;
   one batched point factor per keyframe pair), an ICP relative-pose loop to the closest keyframe pair
   (the pair :mod:`gsslam.loop.icp_loop` measured; its information carried over by the adjoint);
-  keyframe pose priors (plugins) and map registrations go to their keyframes; the gauge prior to ``s0``.
+  keyframe pose priors (plugins) and map registrations go to their keyframes (a relative one keeps its
+  owner submap); the gauge prior to ``s0``.
 
 Measured variants (docs/results.md, "Corrections inside submaps, session 7"): a chain of consecutive
 keyframe pairs instead of ties lets errors walk; flow factors on the keyframe variables (instead of the
@@ -36,8 +37,13 @@ import gtsam
 import numpy as np
 
 from gsslam.errors import GsslamError
-from gsslam.factors import make_keyframe_pose_factor, make_point_factor
-from gsslam.factors import make_registration_factor, make_relative_pose_factor
+from gsslam.factors import (
+    make_keyframe_pose_factor,
+    make_point_factor,
+    make_registration_factor,
+    make_relative_pose_factor,
+    make_relative_registration_factor,
+)
 from gsslam.geometry import invert_T, umeyama
 from gsslam.graph.factor_specs import MAKERS
 from gsslam.graph.keys import keyframe_key, submap_key
@@ -178,6 +184,17 @@ def _move(kind: str, args: tuple, kw: dict, fr: SubmapFrames) -> gtsam.Nonlinear
         g = gtsam.NonlinearFactorGraph()  # one factor per keyframe (each has its own variable now)
         for n, f in enumerate(fs):
             g.add(make_registration_factor(X(f), np.eye(4)[None], T[n : n + 1], info[n : n + 1], "pose3"))
+        return g
+    if kind == "relative_registration":  # the new keyframes to their own variables, the owner stays a submap
+        i = _submap_index(args[1])
+        Ls, T, info = np.asarray(args[2]), np.asarray(args[3]), np.asarray(args[4])
+        fs = [fr.frame_of(i, L) for L in Ls]
+        if any(f is None for f in fs):
+            return None
+        g = gtsam.NonlinearFactorGraph()
+        for n, f in enumerate(fs):
+            T_n, info_n = T[n : n + 1], info[n : n + 1]
+            g.add(make_relative_registration_factor(args[0], X(f), np.eye(4)[None], T_n, info_n, "pose3"))
         return g
     return None
 

@@ -16,7 +16,9 @@ Per new submap (after the graph update and loop closure):
    converged Gaussians of the earlier submaps, alpha > 0.99, before the keyframes add their own
    Gaussians: :mod:`gsslam.mapping.converged`) to the graph as depth-prior factors
    (``mapper.depth_feedback``); with ``mapper.registration_feedback`` the new keyframes are registered
-   against that same converged map and sent as registration factors (:meth:`MapStage.send_registrations`).
+   against that same converged map and sent as registration factors (:meth:`MapStage.send_registrations`):
+   absolute priors in the chain frame, or with ``mapper.registration_relative`` relative poses to the
+   submap that owns most of the converged map the keyframe was registered against (they move with loops).
    Both fire only where the converged Gaussians explain the view: on a revisit.
 
 Submap ids are per chain in the graphs; the mapper gets one global id per ``(chain, submap)``.
@@ -60,6 +62,10 @@ class MapStage:
         self.n_registrations_withheld = 0  # registered, but Gauss-Newton did not reach the map's minimum
         self.withheld: list[Registration] = []  # the last call's (mapper.registration_unconverged_weight=0)
         self.pending: list[tuple[int, Registration]] = []  # (position in the new submap, registration)
+        # relative ones: position -> [(owner submap, T_owner_cam rigid [4, 4] in owner units, info [6, 6])]
+        self.pending_owner: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        self.n_registrations_relative = 0  # of the sent ones, relative to an owner submap
+        self.owner_shares: list[float] = []  # the owners' share of the converged view, per relative one
         self.pending_depth: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe -> (uv, depth)
         self.seconds = 0.0
         self.iterations = 0
@@ -114,6 +120,7 @@ class MapStage:
         self.follow_graph(chains)  # records the new submap's transform before its Gaussians exist
         by_index = {f.index: f for f in frames}
         self.pending = []
+        self.pending_owner = {}
         self.pending_depth = {}
         if self.cfg.depth_feedback and len(self.mapper.model):
             # rendered before the keyframes seed their own Gaussians: the depth is the earlier submaps'
@@ -210,12 +217,57 @@ class MapStage:
                 self.withheld.append(reg)
             else:
                 out.append((pos, reg))
+                if self.cfg.registration_relative:
+                    self._find_owner(chains, cid, sid, pos, reg)
         return out
 
+    def _find_owner(self, chains, cid: int, sid: int, pos: int, reg: Registration) -> None:
+        """The registration relative to the submap (same chain, older) whose converged Gaussians carry most
+        of the registered view's rendered weight; with ``mapper.registration_owner_split`` > 0, relative to
+        every such submap with at least that share, each with its share of the information (renormalised
+        over those kept). Kept in ``pending_owner`` (no owner: sent as absolute)."""
+        where = {gid: cs for cs, gid in self._gid.items()}
+        owners = []  # (submap, share), largest share first
+        shares = self.mapper.registration_owners(reg.T_world_cam)
+        for gid, share in sorted(shares.items(), key=lambda x: -x[1]):
+            c, s = where.get(gid, (-1, -1))
+            if c == cid and s != sid and s < len(chains[c].encodings):
+                owners.append((s, share))
+        if not owners:
+            return
+        split = self.cfg.registration_owner_split
+        kept = [o for o in owners if split > 0 and o[1] >= split] or owners[:1]
+        total = sum(share for _, share in kept)
+        self.pending_owner[pos] = []
+        for s, share in kept:
+            S_wo = self._submap_pose(chains[cid], s)  # [4, 4] Sim(3) T_world_owner now (the map follows it)
+            M = np.linalg.inv(S_wo) @ reg.T_world_cam  # Sim(3) with scale 1 / s_wo: the camera in owner units
+            s_wo = sim3_scale(S_wo)
+            M[:3, :3] *= s_wo
+            D = np.diag([1.0, 1.0, 1.0] + [s_wo] * 3)  # owner translation = world translation / s_wo
+            self.pending_owner[pos].append((s, M, (share / total) * D @ reg.information @ D))
+        self.owner_shares.append(total)
+
     def send_registrations(self, chain, sid: int) -> int:
-        """The pending registrations as one factor on submap ``sid`` of ``chain``; returns how many."""
+        """The pending registrations as factors on submap ``sid`` of ``chain``: one per owner submap for the
+        relative ones, one absolute prior for the rest; returns how many registrations."""
         if not self.pending:
             return 0
+        n = len(self.pending)
+        owners: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}  # owner -> [(position, T, info)]
+        for pos, _ in self.pending:
+            for o, T, info in self.pending_owner.get(pos, []):
+                owners.setdefault(o, []).append((pos, T, info))
+            self.n_registrations_relative += pos in self.pending_owner
+        for o, rel in owners.items():
+            chain.graph.add_relative_registration(
+                o, sid, [r[0] for r in rel], np.stack([r[1] for r in rel]), np.stack([r[2] for r in rel])
+            )
+        self.pending = [(p, r) for p, r in self.pending if p not in self.pending_owner]
+        self.pending_owner = {}
+        self.n_registrations += n
+        if not self.pending:
+            return n
         R_c, t_c, c = split_sim3(np.linalg.inv(chain.T_world_chain))  # world -> chain (scale c)
         T, info = [], []
         D = np.diag([1.0, 1.0, 1.0] + [1.0 / c] * 3)  # chain translation = c x world translation
@@ -226,8 +278,6 @@ class MapStage:
             T.append(M)
             info.append(D @ reg.information @ D)
         chain.graph.add_registration(sid, [p for p, _ in self.pending], np.stack(T), np.stack(info))
-        n = len(self.pending)
-        self.n_registrations += n
         self.pending = []
         return n
 
@@ -264,6 +314,8 @@ class MapStage:
             "registration_factors": self.n_registrations,
             "registrations_gated": self.n_registrations_gated,
             "registrations_withheld": self.n_registrations_withheld,
+            "registrations_relative": self.n_registrations_relative,
+            "registration_owner_share": float(np.mean(self.owner_shares)) if self.owner_shares else None,
             "width": self.mapper.intrinsics.width,
             "height": self.mapper.intrinsics.height,
             "rasterizer_backend": self.mapper.rasterizer_backend,

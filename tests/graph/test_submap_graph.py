@@ -169,3 +169,20 @@ def test_flow_effective_points_scales_the_factor_information():
         errors.append(g.backend.factor(h).error(v))
     # 192 matches weigh as 4: the whitened error (and the information) shrinks by 4 / 192
     assert errors[0] > 0 and np.isclose(errors[1] / errors[0], 4 / len(uv), rtol=1e-6)
+
+
+def test_relative_registration_on_a_revisit_closes_the_loop(chain):
+    """The last keyframe (frame 300 = frame 0) registered against the map of submap 0, the owner, as
+    a relative pose (the camera at the owner's origin, 1 mm / 1 mrad): it closes the drifted circle
+    through the owner's variable rather than the chain frame (measured 4.1x; a single pose does not
+    fix the last submap's scale as the loop points of the first test do, >= 5x there)."""
+    encs, truth = chain
+    g = _build(encs)
+    ate_open = ate(g.keyframe_poses(), truth)
+    info = np.diag([1e6] * 3 + [1e6 / encs[0].meta["unit"] ** -2] * 3)[None]  # owner units: 1 mm in the world
+    g.add_relative_registration(0, N_SUB - 1, [6], np.eye(4)[None], info)
+    g.update(extra_iterations=5)
+    ate_reg = ate(g.keyframe_poses(), truth)
+    assert ate_open / ate_reg >= 3.5, (ate_open, ate_reg)
+    with pytest.raises(GraphError, match="submap 50"):
+        g.add_relative_registration(0, N_SUB, [6], np.eye(4)[None], info)

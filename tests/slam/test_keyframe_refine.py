@@ -182,3 +182,34 @@ def test_run_with_keyframe_refinement(bundled_tum):
         for f, T in kf.items():
             assert np.abs(T - chain.world_pose(chain.refined_poses[f])).max() < 1e-12
             assert np.abs(T - chain.world_pose(chain.graph.keyframe_pose(f))).max() < 1e-6  # measured ~1e-9
+
+
+def test_relative_registration_moves_to_its_keyframe_and_keeps_its_owner_submap():
+    """A relative registration of submap 1's keyframe 3 against owner submap 0 becomes a factor between the
+    owner's submap variable and the keyframe's own variable: zero where the keyframe sits at the measured
+    pose in the owner's frame, non-zero 1 cm away."""
+    import gtsam
+
+    from gsslam.graph.factor_specs import spec
+    from gsslam.graph.keys import keyframe_key, submap_key
+    from gsslam.slam.keyframe_refine import SubmapFrames, _move
+
+    L0 = np.stack([np.eye(4)] * 3)
+    L1 = np.stack([np.eye(4)] * 3)
+    L1[1, :3, 3] = [0.1, 0.0, 0.0]
+    fr = SubmapFrames([[0, 1, 2], [2, 3, 4]], [L0, L1])
+    T_owner_cam = np.eye(4)
+    T_owner_cam[:3, 3] = [0.5, 0.2, 0.0]
+    kind, args, kw = spec("relative_registration", submap_key(0), submap_key(1), L1[1:2], T_owner_cam[None],
+                          np.eye(6)[None] * 1e4, "sim3")  # fmt: skip
+    g = _move(kind, args, kw, fr)
+    assert g is not None and g.size() == 1
+    S0 = np.eye(4)
+    S0[:3, 3] = [1.0, 0.0, 0.0]
+    for off, want_zero in ((0.0, True), (0.01, False)):
+        v = gtsam.Values()
+        v.insert(submap_key(0), gtsam.Pose3(S0))
+        T = S0 @ T_owner_cam
+        T[0, 3] += off
+        v.insert(keyframe_key(3), gtsam.Pose3(T))
+        assert (g.error(v) < 1e-12) == want_zero

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 from gsslam.config import MapperConfig
@@ -16,6 +18,7 @@ def _stage(depth: torch.Tensor, alpha: torch.Tensor, scale: float) -> tuple[MapS
     stage.cfg = MapperConfig()
     stage.mapper = SimpleNamespace(render_keyframe=lambda index: SimpleNamespace(depth=depth, alpha=alpha))
     stage._anchor = {7: (0, 0, 0)}
+    stage.pending_owner, stage.n_registrations_relative, stage.owner_shares = {}, 0, []
     S = np.diag([scale, scale, scale, 1.0])
     chains = [SimpleNamespace(T_world_chain=np.eye(4), graph=SimpleNamespace(submap_pose=lambda s: S))]
     return stage, chains
@@ -91,3 +94,58 @@ def test_unconverged_registrations_are_withheld_not_sent():
         T_world_chain=np.eye(4), graph=SimpleNamespace(add_registration=lambda *a: sent.update(a=a))
     )
     assert stage.send_registrations(chain, 0) == 1 and len(sent["a"][1]) == 1
+
+
+@pytest.mark.parametrize("split", [0.0, 0.1])
+def test_relative_registrations_go_to_their_owner_submap_in_its_units(split):
+    """mapper.registration_relative: a registration whose view is owned by submap 1 of the same chain
+    (drawn at scale 2, shifted by (1, 0, 0) in the world) is sent as a relative factor (1 -> 4), the camera
+    in submap 1's frame and units, translation information x 4; one whose owners are all in another chain
+    falls back to the absolute prior on submap 4. With mapper.registration_owner_split=0.1 submap 2 (share
+    0.2) gets a factor too, the information split 0.8 / 0.2."""
+    from gsslam.mapping.registration import Registration
+
+    S1 = np.diag([2.0, 2.0, 2.0, 1.0])
+    S1[:3, 3] = [1.0, 0.0, 0.0]
+    sent = {}
+    graph = SimpleNamespace(
+        submap_pose=lambda s: S1 if s == 1 else np.eye(4),
+        add_relative_registration=lambda o, sid, pos, T, I: sent.update({("rel", o): (o, sid, pos, T, I)}),
+        add_registration=lambda sid, pos, T, info: sent.update(abs=(sid, pos)),
+    )
+    chain = SimpleNamespace(T_world_chain=np.eye(4), graph=graph, encodings=[None] * 5)
+    T_world_cam = np.eye(4)
+    T_world_cam[:3, 3] = [3.0, 1.0, 0.0]
+    info = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    regs = {7: Registration(7, T_world_cam, info, 0.9, 0.03, 1e4, 10.0),
+            8: Registration(8, T_world_cam, info, 0.9, 0.03, 1e4, 10.0)}  # fmt: skip
+    owners = {7: {10: 0.8, 11: 0.2}, 8: {12: 1.0}}  # mapper submap ids: 10 = (0, 1), 11 = (0, 2), 12 = (1, 0)
+    stage, _ = _stage(torch.zeros(1, 1), torch.zeros(1, 1), 1.0)
+    stage.cfg = MapperConfig(
+        registration_feedback=True, registration_relative=True, registration_owner_split=split
+    )
+    stage._gid = {(0, 1): 10, (0, 2): 11, (1, 0): 12}
+    stage.mapper = SimpleNamespace(
+        register=lambda frame, T_wc, pts, conf: regs[frame],
+        registration_owners=lambda T: owners[7] if T is regs[7].T_world_cam else owners[8],
+    )
+    regs[8] = dataclasses.replace(regs[8], T_world_cam=T_world_cam.copy())
+    stage.n_registrations = stage.n_registrations_gated = stage.n_registrations_withheld = 0
+    enc = SimpleNamespace(frame_indices=[6, 7, 8], T_local_cam=[np.eye(4)] * 3, points_cam=[None] * 3,
+                          confidence=[None] * 3)  # fmt: skip
+    stage.pending = stage._register([chain], 0, 4, enc, {i: i for i in range(6, 9)}, [7, 8])
+    assert stage.send_registrations(chain, 4) == 2
+    o, sid, pos, T, I = sent[("rel", 1)]
+    assert (o, sid, pos) == (1, 4, [1]) and sent["abs"] == (4, [2])
+    np.testing.assert_allclose(T[0][:3, 3], [1.0, 0.5, 0.0])  # ((3, 1, 0) - (1, 0, 0)) / 2
+    np.testing.assert_allclose(T[0][:3, :3], np.eye(3))
+    w = 0.8 if split else 1.0
+    np.testing.assert_allclose(np.diag(I[0]), w * np.array([1.0, 2.0, 3.0, 16.0, 20.0, 24.0]))
+    assert (("rel", 2) in sent) == bool(split)
+    if split:
+        o, sid, pos, T, I = sent[("rel", 2)]  # submap 2 at the world origin, scale 1
+        assert (o, sid, pos) == (2, 4, [1])
+        np.testing.assert_allclose(T[0][:3, 3], [3.0, 1.0, 0.0])
+        np.testing.assert_allclose(np.diag(I[0]), 0.2 * np.diag(info))
+    assert stage.n_registrations == 2 and stage.n_registrations_relative == 1
+    assert stage.owner_shares == pytest.approx([1.0 if split else 0.8])

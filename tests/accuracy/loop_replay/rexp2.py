@@ -105,7 +105,7 @@ def thr_of(sp):
 
 def variant(name):
     """loop_map for a variant name."""
-    if "_" in name:  # BASE_KERNELc: a base variant's factor under a robust kernel on the loop's norm (3N)
+    if "_" in name and name != "asis_gt":  # BASE_KERNELc: a base variant's factor under a robust kernel on the loop's norm (3N)
         base, kern = name.split("_")
         inner = variant(base)["loop_map"]
         kind = kern.rstrip("0123456789.")
@@ -252,7 +252,7 @@ def variant(name):
         def m(sp):
             i, mm = KEY2SUB[sp[1][0]], KEY2SUB[sp[1][1]]
             Tim = invert_T(G_of(i)) @ G_of(mm)
-            return (sp[0], (sp[1][0], sp[1][1], transform_points(Tim, sp[1][3]), sp[1][3], sp[1][4]), {})
+            return (sp[0], (sp[1][0], sp[1][1], transform_points(Tim, sp[1][3]), sp[1][3], *sp[1][4:]), sp[2])
         return dict(loop_map=m)
     raise SystemExit(f"unknown variant {name}")
 

@@ -13,7 +13,7 @@ from gsslam.loop.extent import lateral_extent_rel
 from gsslam.loop.weights import loop_weight
 
 
-def _patch(rng, width_x, width_y, n=300, z=3.0, relief=0.2):  # [n, 3] points on a patch in front of the camera
+def _patch(rng, width_x, width_y, n=300, z=3.0, relief=0.2):  # [n, 3] a patch in front of the camera
     X = np.column_stack([rng.uniform(-width_x, width_x, n), rng.uniform(-width_y, width_y, n), np.full(n, z)])
     X[:, 2] += relief * np.sin(3 * X[:, 0]) * np.cos(2 * X[:, 1])
     return X

@@ -214,6 +214,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "loop.rejoin_min_fitness": UNIT,
     "loop.mono_sigma_min_rel": POS,
     "loop.mono_dcs_phi": NONNEG,
+    "loop.mono_extent_sigma": NONNEG,
     "loop.mono_inlier_gate": ("median", "range", "ray"),
     "loop.ray_threshold_deg": Range(0.0, 90.0, lo_open=True),
     "loop.ray_depth_rel": POS,

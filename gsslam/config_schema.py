@@ -239,6 +239,7 @@ class LoopConfig:
     mono_sigma_min_rel: float = 0.25  # mono: floor of that sigma, as a fraction of the loop's inlier distance
     mono_sigma_ray: bool = True  # mono: loop noise along / across each point's viewing ray, from the loop's residuals (else one isotropic sigma)
     mono_dcs_phi: float = 1.0  # mono, ray noise: DCS kernel per loop, full weight up to chi2 = this x 3N (0: no kernel)
+    mono_extent_sigma: float = 0.0  # mono: a loop's sigmas x max(1, this / its points' lateral extent, the 2nd principal std over median range; loop/extent.py); 0: off
     mono_inlier_gate: str = "median"  # mono RANSAC inliers (loop/ray_gate.py): "median" |T X_m - X_i| < inlier_threshold_rel x median depth; "range": < inlier_threshold_rel x the point's range; "ray": ray angle + range
     ray_threshold_deg: float = 1.0  # mono "ray" gate: angle between the two rays of a match, in submap i's view
     ray_depth_rel: float = 0.04  # mono "ray" gate: range disagreement / range (the point maps' depth noise)

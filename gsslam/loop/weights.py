@@ -38,6 +38,7 @@ import numpy as np
 
 from gsslam.config import LoopConfig
 from gsslam.geometry import transform_points
+from gsslam.loop.extent import lateral_extent_rel
 from gsslam.loop.types import LoopConstraint
 
 
@@ -79,8 +80,20 @@ def loop_weight(loop: LoopConstraint, mode: str, cfg: LoopConfig) -> LoopWeight 
     """Mono: the loop's weight in submap-i units (``loop.mono_sigma_ray``: along / across the rays with
     a DCS kernel; else :func:`loop_point_sigma`). None: RGB-D, or the old world-unit factor."""
     sigma = loop_point_sigma(loop, mode, cfg)
-    if sigma is None or not cfg.mono_sigma_ray:
-        return None if sigma is None else LoopWeight(sigma)
+    if sigma is None:
+        return None
+    f = extent_factor(loop, cfg)
+    if not cfg.mono_sigma_ray:
+        return LoopWeight(f * sigma)
     floor = cfg.mono_sigma_min_rel * loop.threshold
     s_ray, s_perp = ray_sigmas(loop)
-    return LoopWeight(max(s_ray, floor), max(s_perp, floor), cfg.mono_dcs_phi)
+    return LoopWeight(f * max(s_ray, floor), f * max(s_perp, floor), cfg.mono_dcs_phi)
+
+
+def extent_factor(loop: LoopConstraint, cfg: LoopConfig) -> float:
+    """``max(1, loop.mono_extent_sigma / extent)``: a loop whose points lie on a narrow strip turns with
+    the point maps' correlated depth error, not with its inlier noise (:mod:`gsslam.loop.extent`); 1 when
+    the key is 0."""
+    if cfg.mono_extent_sigma <= 0:
+        return 1.0
+    return max(1.0, cfg.mono_extent_sigma / max(lateral_extent_rel(loop.X_i), 1e-9))

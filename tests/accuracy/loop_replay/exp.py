@@ -100,7 +100,8 @@ def main():
     state["frame_indices"] = [list(e.frame_indices) for e in ch.encodings]
     state["ts"] = ts; state["gt"] = gt; state["loops"] = pipe.loop_stage.metrics()
     state["chains"] = len(pipe.chains)
-    state["loopc"] = [dict(i=lc.i, m=lc.m, X_i=lc.X_i, X_m=lc.X_m, T_i_m=lc.T_i_m, thr=lc.threshold) for d in pipe.loop_stage._loops.values() for lc in d.values()]
+    state["loopc"] = [dict(i=lc.i, m=lc.m, X_i=lc.X_i, X_m=lc.X_m, T_i_m=lc.T_i_m, thr=lc.threshold,
+                           view_i=lc.view_i, view_m=lc.view_m) for d in pipe.loop_stage._loops.values() for lc in d.values()]
     if a.keep_depth:
         state["enc_depth"] = [e.points_cam[..., 2].astype(np.float32) for e in ch.encodings]
         state["enc_intr"] = [e.intrinsics for e in ch.encodings]

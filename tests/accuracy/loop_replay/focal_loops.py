@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))  # replay.py
-from replay import gt_pose_at, is_loop, kf_poses, load_kept, replay  # noqa: E402
+from replay import gt_origin, gt_pose_at, is_loop, kf_poses, load_kept, replay  # noqa: E402
 
 from gsslam.geometry import invert_T, split_sim3, transform_points  # noqa: E402
 
@@ -34,7 +34,7 @@ def gt_at(t):
 
 def rot_err(i, m, T_i_m):
     """Degrees between the loop's rotation and the truth's (free of the unknown mono scale)."""
-    Gi, Gm = gt_at(ts[st["frame_indices"][i][0]]), gt_at(ts[st["frame_indices"][m][0]])
+    Gi, Gm = gt_origin(st, gt, i), gt_origin(st, gt, m)  # anchored at keyframes with ground truth
     R_gt = (invert_T(Gi) @ Gm)[:3, :3]
     R = split_sim3(T_i_m)[0]
     return float(np.degrees(np.arccos(np.clip((np.trace(R_gt.T @ R) - 1) / 2, -1, 1))))
@@ -60,7 +60,9 @@ def table():
     err = {(lc["i"], lc["m"]): rot_err(lc["i"], lc["m"], lc["T_i_m"]) for lc in st["loopc"]}
     S = st["S_before"]
     kept = {(lc["i"], lc["m"]) for lc in st["loopc"]}
-    print(" i-m    N   s_ray/thr s_perp/thr  rot_err  est_err  chi2/3N  dcs_w  kept")
+    spr = spreads() if st["loopc"] and "view_i" in st["loopc"][0] else {}
+    from gsslam.loop.extent import lateral_extent_rel
+    print(" i-m    N   s_ray/thr s_perp/thr  rot_err  est_err  chi2/3N  dcs_w  kept  spread  extent")
     for sp in loop_specs():
         i, m = ij(sp)
         Xi, Xm, s_ray, s_perp = sp[1][2], sp[1][3], sp[1][4], sp[1][5]
@@ -73,7 +75,29 @@ def table():
         e = err.get((i, m), np.nan)
         print(f"{i:2d}-{m:2d} {len(Xi):4d}  {s_ray / thr:6.3f}   {s_perp / thr:6.3f}   {e:6.2f}  "
               f"{rot_err(i, m, T_est):6.2f}  "
-              f"{c2 / (3 * len(Xi)):7.2f}  {w:5.2f}  {(i, m) in kept}")
+              f"{c2 / (3 * len(Xi)):7.2f}  {w:5.2f}  {(i, m) in kept}  {spr.get((i, m), np.nan):6.2f}  "
+              f"{lateral_extent_rel(Xi):6.3f}")
+
+
+def spreads(min_points=12):
+    """(i, m) -> the loop's view-pair rotation spread, deg: the largest angle between the Sim(3) rotation
+    fitted to one view pair's inliers (pairs of >= ``min_points``) and the loop's pooled rotation; 0 with
+    fewer than two such pairs (session 12; needs a run kept with the loops' views)."""
+    from gsslam.geometry import umeyama
+
+    def rot(T):
+        return T[:3, :3] / np.cbrt(np.linalg.det(T[:3, :3]))
+
+    def angle(Ra, Rb):
+        return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))))
+
+    out = {}
+    for lc in st["loopc"]:
+        pair = lc["view_i"].astype(np.int64) * 1_000_003 + lc["view_m"].astype(np.int64)
+        R = [rot(umeyama(lc["X_m"][pair == p], lc["X_i"][pair == p], with_scale=True))
+             for p in np.unique(pair) if (pair == p).sum() >= min_points]
+        out[(lc["i"], lc["m"])] = max((angle(rot(lc["T_i_m"]), r) for r in R), default=0.0) if len(R) > 1 else 0.0
+    return out
 
 
 def keep(pairs):
@@ -139,6 +163,35 @@ def variant(name):
             Xi, Xm, s_ray, s_perp = sp[1][2], sp[1][3], sp[1][4], sp[1][5]
             c0 = ray_chi2(Xi, Xm, umeyama(Xm, Xi, with_scale=True), s_ray, s_perp)
             return (sp[0], sp[1], {**sp[2], "dcs_phi": c * c0 / (3 * len(Xi))})
+        return dict(loop_map=m)
+    if name.startswith("spread") or name.startswith("spw"):
+        # session 12: the loop's view-pair spread (gsslam/loop/view_spread.py; kept runs with views only):
+        # spreadX leaves out loops whose spread is above X deg, spwX multiplies their sigmas by spread / X
+        x = float(name[6:] if name.startswith("spread") else name[3:])
+        sp_of = spreads()
+
+        def m(sp):
+            d = sp_of.get(ij(sp), 0.0)
+            if name.startswith("spread"):
+                return None if d > x else sp
+            f = max(1.0, d / x)
+            a = sp[1]
+            return (sp[0], (*a[:4], a[4] * f, a[5] * f, *a[6:]), sp[2])
+        return dict(loop_map=m)
+    if name.startswith("extw") or name.startswith("ext"):
+        # session 12: the loop's lateral extent (gsslam/loop/extent.py): extX leaves out loops whose
+        # points' second principal std / median range is below X, extwX multiplies their sigmas by X / it
+        from gsslam.loop.extent import lateral_extent_rel
+        w = name.startswith("extw")
+        x = float(name[4:] if w else name[3:])
+
+        def m(sp):
+            e = lateral_extent_rel(sp[1][2])
+            if not w:
+                return None if e < x else sp
+            f = max(1.0, x / max(e, 1e-9))
+            a = sp[1]
+            return (sp[0], (*a[:4], a[4] * f, a[5] * f, *a[6:]), sp[2])
         return dict(loop_map=m)
     if name.startswith("phi"):
         c = float(name[3:])

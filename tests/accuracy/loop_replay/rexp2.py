@@ -12,7 +12,7 @@ import gtsam
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))  # replay.py
-from replay import gt_pose_at, is_loop, load_kept, replay  # noqa: E402
+from replay import gt_origin, gt_pose_at, has_gt, is_loop, load_kept, replay  # noqa: E402
 
 from gsslam.factors import make_relative_point_factor, to_matrix  # noqa: E402
 from gsslam.factors.loop_points import relative_point_residual  # noqa: E402
@@ -30,13 +30,15 @@ def gt_at(t):
 
 mpl = []  # metres per local unit of each submap, from its keyframe translations
 for fi, L in zip(st["frame_indices"], st["T_local_cam"]):
-    G = np.stack([gt_at(ts[f]) for f in fi])
+    ok = [j for j, f in enumerate(fi) if has_gt(gt, ts[f])] or list(range(len(fi)))  # keyframes with truth
+    G = np.stack([gt_at(ts[fi[j]]) for j in ok])
     Grel = np.array([invert_T(G[0]) @ g for g in G])
-    mpl.append(np.linalg.norm(Grel[:, :3, 3], axis=1).sum() / np.linalg.norm(L[:, :3, 3], axis=1).sum())
+    Lrel = np.array([invert_T(L[ok[0]]) @ L[j] for j in ok])
+    mpl.append(np.linalg.norm(Grel[:, :3, 3], axis=1).sum() / np.linalg.norm(Lrel[:, :3, 3], axis=1).sum())
 
 
 def G_of(k):  # the submap's local frame -> metres (its first keyframe is its origin)
-    g = gt_at(ts[st["frame_indices"][k][0]]).copy()
+    g = gt_origin(st, gt, k, mpl[k]).copy()  # anchored at its first keyframe with ground truth
     g[:3, :3] *= mpl[k]
     return g
 
@@ -103,7 +105,7 @@ def thr_of(sp):
 
 def variant(name):
     """loop_map for a variant name."""
-    if "_" in name:  # BASE_KERNELc: a base variant's factor under a robust kernel on the loop's norm (3N)
+    if "_" in name and name != "asis_gt":  # BASE_KERNELc: a base variant's factor under a robust kernel on the loop's norm (3N)
         base, kern = name.split("_")
         inner = variant(base)["loop_map"]
         kind = kern.rstrip("0123456789.")
@@ -250,7 +252,7 @@ def variant(name):
         def m(sp):
             i, mm = KEY2SUB[sp[1][0]], KEY2SUB[sp[1][1]]
             Tim = invert_T(G_of(i)) @ G_of(mm)
-            return (sp[0], (sp[1][0], sp[1][1], transform_points(Tim, sp[1][3]), sp[1][3], sp[1][4]), {})
+            return (sp[0], (sp[1][0], sp[1][1], transform_points(Tim, sp[1][3]), sp[1][3], *sp[1][4:]), sp[2])
         return dict(loop_map=m)
     raise SystemExit(f"unknown variant {name}")
 

@@ -84,6 +84,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.rgbd_icp_auto_max_ratio": POS,
     "encoder.rgbd_joint_flow_weight": POS,
     "encoder.colour_focal_frames": _ge(8),
+    "encoder.colour_focal_max_frames": _ge(8),
     "encoder.colour_focal_min_dev": Range(0.0, 0.5),
     "encoder.colour_focal_min_baseline_m": Range(0.0, 0.2),
     "encoder.colour_focal_min_gain": Range(0.0, 0.9),

@@ -61,6 +61,7 @@ class EncoderConfig:
     rgbd_joint_with_icp: bool = True  # that joint pose also where rgbd_icp is set (registered depth), unless ColourDepthCheck finds a mismatch
     colour_focal_auto: bool = True  # RGB-D: depth-to-colour registration from the first frames (depth_registration.py)
     colour_focal_frames: int = 40  # frames read for that estimate
+    colour_focal_max_frames: int = 200  # ... read further, that many frames at most, while those give no evidence (e.g. a bare wall)
     colour_focal_min_dev: float = 0.02  # correct intrinsics + register depth only when |ratio - 1| exceeds this
     colour_focal_min_baseline_m: float = 0.01  # ... or |depth-colour baseline| exceeds this (m)
     colour_focal_min_gain: float = 0.15  # ... and the fit lowers the flow reprojection error by this fraction

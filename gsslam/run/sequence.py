@@ -292,19 +292,35 @@ def run_dataset(
     return result
 
 
-def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (registration to apply, its estimate | None)
+def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to apply, estimate | None)
     """RGB-D: depth-to-colour registration from the first frames (frontend/depth_registration.py), as a
-    run estimates it; a run that applies a registration also takes its poses from depth (``rgbd_icp``)."""
+    run estimates it; a run that applies a registration also takes its poses from depth (``rgbd_icp``).
+    Windows of ``encoder.colour_focal_frames`` are read in turn, up to ``colour_focal_max_frames``, until
+    one gives the estimate evidence (``ok``); none: a warning, and the depth is used as given."""
     if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
         return IDENTITY, None
-    n = min(len(ds), cfg.encoder.colour_focal_frames, max_frames or len(ds))
-    frames = [ds[i] for i in range(n)]
     enc = cfg.encoder
-    return registration_correction(
-        frames, make_flow_estimator(cfg.flow), min_dev=enc.colour_focal_min_dev,
-        min_baseline_m=enc.colour_focal_min_baseline_m,
-        min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
-    )  # fmt: skip
+    end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
+    flow = make_flow_estimator(cfg.flow)
+    reg, est, start = IDENTITY, None, 0
+    while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
+        frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
+        reg, est = registration_correction(
+            frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
+            min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
+        )  # fmt: skip
+        if est is None or est.ok:
+            break
+        start += enc.colour_focal_frames
+    if est is not None and not est.ok:
+        log.warning(
+            "depth-to-colour registration: no evidence in the first %d frames (%d flow pairs with depth "
+            "geometry); depth is used as given. If it is not registered to colour, results suffer "
+            "(docs/frontend.md)", end, est.pairs,
+        )  # fmt: skip
+    elif start > 0:
+        log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
+    return reg, est
 
 
 def _mono_focal(ds, cfg: Config, max_frames: int | None):  # -> (focal scale to apply, estimate | None)

@@ -46,6 +46,21 @@ def sqrt_information_batch(info: np.ndarray) -> np.ndarray:  # [N, 6, 6] -> [N, 
     return out
 
 
+def registration_inputs(
+    what: str,  # the factor's name, for errors
+    T_local_cam: np.ndarray,  # [N, 4, 4] keyframe poses inside the submap
+    measured: tuple[str, np.ndarray],  # (name, [N, 4, 4] registered camera poses)
+    information: np.ndarray,  # [N, 6, 6]
+):  # -> (sqrt information [N, 6, 6], R_local [N, 3, 3], t_local [N, 3], R_measured, t_measured)
+    """The checked inputs of a batched registration factor (absolute or relative)."""
+    Tl = check_shape("T_local_cam", T_local_cam, (None, 4, 4))
+    Tm = check_shape(measured[0], measured[1], (len(Tl), 4, 4))
+    info = check_shape("information", information, (len(Tl), 6, 6))
+    if len(Tl) == 0:
+        raise FactorInputError(f"{what}: need at least one keyframe")
+    return sqrt_information_batch(info), Tl[:, :3, :3], Tl[:, :3, 3], Tm[:, :3, :3], Tm[:, :3, 3]
+
+
 def make_registration_factor(
     key: int,
     T_local_cam: np.ndarray,  # [N, 4, 4] rigid, submap units: keyframe poses inside the submap
@@ -55,15 +70,10 @@ def make_registration_factor(
 ) -> gtsam.CustomFactor:
     """Batched registration factor of N keyframes of one submap on its variable, dimension 6N."""
     check_group(group)
-    Tl = check_shape("T_local_cam", T_local_cam, (None, 4, 4))
-    Tm = check_shape("T_chain_cam", T_chain_cam, (len(Tl), 4, 4))
-    info = check_shape("information", information, (len(Tl), 6, 6))
-    if len(Tl) == 0:
-        raise FactorInputError("registration factor: need at least one keyframe")
-    L = sqrt_information_batch(info)
-    Rl, tl = Tl[:, :3, :3], Tl[:, :3, 3]
-    Rm, tm = Tm[:, :3, :3], Tm[:, :3, 3]
-    n, d = len(Tl), group_dim(group)
+    L, Rl, tl, Rm, tm = registration_inputs(
+        "registration factor", T_local_cam, ("T_chain_cam", T_chain_cam), information
+    )
+    n, d = len(Rl), group_dim(group)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         R, t, s = read_transform(values, this.keys()[0], group)

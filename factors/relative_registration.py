@@ -38,7 +38,7 @@ from ._lie import (
     so3_right_jacobian_inv,
 )
 from .errors import FactorInputError
-from .registration import sqrt_information_batch
+from .registration import registration_inputs
 
 
 def make_relative_registration_factor(
@@ -53,15 +53,10 @@ def make_relative_registration_factor(
     check_group(group)
     if int(key_owner) == int(key_new):
         raise FactorInputError("relative registration factor: the owner and the new submap must differ")
-    Tl = check_shape("T_local_cam", T_local_cam, (None, 4, 4))
-    Tm = check_shape("T_owner_cam", T_owner_cam, (len(Tl), 4, 4))
-    info = check_shape("information", information, (len(Tl), 6, 6))
-    if len(Tl) == 0:
-        raise FactorInputError("relative registration factor: need at least one keyframe")
-    L = sqrt_information_batch(info)
-    Rl, tl = Tl[:, :3, :3], Tl[:, :3, 3]
-    Rm, tm = Tm[:, :3, :3], Tm[:, :3, 3]
-    n, d = len(Tl), group_dim(group)
+    L, Rl, tl, Rm, tm = registration_inputs(
+        "relative registration factor", T_local_cam, ("T_owner_cam", T_owner_cam), information
+    )
+    n, d = len(Rl), group_dim(group)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         ko, kn = this.keys()

@@ -15,8 +15,8 @@ from .loop_points import make_relative_point_factor
 from .loop_rays import make_ray_point_factor
 from .points import make_point_factor
 from .registration import make_registration_factor
-from .relative_registration import make_relative_registration_factor
 from .relative_pose import make_relative_pose_factor
+from .relative_registration import make_relative_registration_factor
 from .scale import make_scale_factor, make_scale_prior_factor, median_depth_ratio
 from .submap_alignment import make_submap_alignment_factor
 

@@ -29,7 +29,6 @@ import numpy as np
 
 from ._lie import (
     check_group,
-    check_shape,
     fill,
     group_dim,
     read_transform,

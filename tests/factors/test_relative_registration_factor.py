@@ -16,16 +16,8 @@ from gsslam.factors import (
     to_matrix,
 )
 from helpers.factors import analytic_jacobians, numeric_jacobians, random_value
-
-
-def _rigid(rng, n):
-    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-1, 1, 3)), rng.uniform(-1, 1, 3)) for _ in range(n)]
-    return np.stack([p.matrix() for p in poses])
-
-
-def _info(rng, n):
-    A = rng.normal(size=(n, 6, 6))
-    return np.einsum("nij,nkj->nik", A, A) + 0.5 * np.eye(6)
+from helpers.factors import random_information as _info
+from helpers.factors import random_rigid_batch as _rigid
 
 
 def _rigid_part(T):  # Sim(3) [4, 4] -> its rigid camera pose (rotation, translation unchanged)

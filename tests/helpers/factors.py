@@ -49,3 +49,13 @@ def numeric_jacobians(factor, values: gtsam.Values, delta: float = 1e-6) -> list
 
         out.append(numericalDerivative11(h, base, delta))
     return out
+
+
+def random_rigid_batch(rng: np.random.Generator, n: int) -> np.ndarray:  # [n, 4, 4] rigid poses
+    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.uniform(-1, 1, 3)), rng.uniform(-1, 1, 3)) for _ in range(n)]
+    return np.stack([p.matrix() for p in poses])
+
+
+def random_information(rng: np.random.Generator, n: int) -> np.ndarray:  # [n, 6, 6] positive definite
+    A = rng.normal(size=(n, 6, 6))
+    return np.einsum("nij,nkj->nik", A, A) + 0.5 * np.eye(6)

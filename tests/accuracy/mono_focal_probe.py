@@ -10,6 +10,7 @@ Prints the estimate, each window's minimum and the summed profile (docs/results.
 session 10").
 """
 import argparse
+import os
 import time
 
 import numpy as np
@@ -22,7 +23,8 @@ from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.mono_focal import estimate_mono_focal
 from gsslam.types import Frame
 
-DATA = "../shared/data/rgbd_dataset_freiburg3_teddy"
+ROOT = os.environ.get("GSSLAM_DATA", "../shared/data")
+DATA = f"{ROOT}/rgbd_dataset_freiburg3_teddy"
 S2 = dict(base="tum", pattern="fbfbf", stride=2, degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))
 MIS = dict(baseline_m=0.025, focal_scale=1.114, report="depth")
 
@@ -36,10 +38,10 @@ def frames_of(row: str, n: int) -> tuple[list[Frame], float]:  # -> (frames, tru
         ds = open_dataset("tum", DATA, with_depth=False)
         return [ds[i] for i in range(n)], 1.0
     if row in ("kitti01", "kitti06"):
-        ds = open_dataset("kitti", "../shared/data/kitti_odometry", sequence=row[-2:])
+        ds = open_dataset("kitti", f"{ROOT}/kitti_odometry", sequence=row[-2:])
         return [ds[i] for i in range(min(n, len(ds)))], 1.0
     if row == "euroc":
-        ds = open_dataset("euroc", "../shared/data/euroc_V1_01_easy")
+        ds = open_dataset("euroc", f"{ROOT}/euroc_V1_01_easy")
         return [ds[i] for i in range(min(n, len(ds)))], 1.0
     if row == "synth_loop":
         ds = SyntheticDataset(n_frames=800, width=320, height=240, trajectory="loop", seed=5, focal_scale=1.114)

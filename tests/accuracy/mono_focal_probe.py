@@ -3,9 +3,11 @@
     PYTHONPATH=.:tests python tests/accuracy/mono_focal_probe.py ROW [--frames 60] [--set gap=3 ...]
 
 ROW: ``s2_blur_7scenes`` (teddy s2_blur handed out at the depth focal, true scale 1/1.114), ``s2_blur``
-(right focal, true 1), ``teddy`` (TUM teddy 200, true 1), ``synth_loop`` (the synthetic orbit loop at
+(right focal, true 1), ``s3_blur`` (the 3x playback, right focal), ``teddy`` (TUM teddy 200, true 1), ``synth_loop`` (the synthetic orbit loop at
 focal_scale 1.114), ``kitti01``, ``kitti06``, ``euroc`` (true 1), ``synth_room`` (the synthetic room scanned by a hand-held pan, tests/helpers/room_scan.py, focal_scale 1.114;
-``synth_room_true`` at the true focal).
+``synth_room_true`` at the true focal), ``synth_loop_true`` (the orbit at its true focal),
+``synth_room1000`` / ``synth_room1000_kinect`` (the long synthetic room's walk at focal x1.114, exact / the
+tracking suite's kinect row).
 Prints the estimate, each window's minimum and the summed profile (docs/results.md, "Mono focal length,
 session 10").
 """
@@ -34,6 +36,9 @@ def frames_of(row: str, n: int) -> tuple[list[Frame], float]:  # -> (frames, tru
         kw = dict(S2, misregister=MIS) if row == "s2_blur_7scenes" else S2
         ds = open_dataset("playback", DATA, with_depth=False, **kw) if False else open_dataset("playback", DATA, **kw)
         return [ds[i] for i in range(n)], (1 / 1.114 if row == "s2_blur_7scenes" else 1.0)
+    if row == "s3_blur":  # the tracking suite's teddy200_s3_blur mono row (right focal)
+        ds = open_dataset("playback", DATA, **dict(S2, pattern="fbfbfbf", stride=3))
+        return [ds[i] for i in range(n)], 1.0
     if row == "teddy":
         ds = open_dataset("tum", DATA, with_depth=False)
         return [ds[i] for i in range(n)], 1.0
@@ -43,8 +48,17 @@ def frames_of(row: str, n: int) -> tuple[list[Frame], float]:  # -> (frames, tru
     if row == "euroc":
         ds = open_dataset("euroc", f"{ROOT}/euroc_V1_01_easy")
         return [ds[i] for i in range(min(n, len(ds)))], 1.0
-    if row == "synth_loop":
-        ds = SyntheticDataset(n_frames=800, width=320, height=240, trajectory="loop", seed=5, focal_scale=1.114)
+    if row in ("synth_loop", "synth_loop_true"):
+        fs = 1.114 if row == "synth_loop" else 1.0
+        ds = SyntheticDataset(n_frames=800, width=320, height=240, trajectory="loop", seed=5, focal_scale=fs)
+        return [ds[i] for i in range(n)], 1 / fs
+    if row in ("synth_room1000", "synth_room1000_kinect"):  # the long synthetic room at focal x1.114
+        kw = dict(n_frames=1000, width=320, height=240, scene="furnished_room", trajectory="room_walk", seed=0)
+        if row == "synth_room1000":
+            kw["focal_scale"] = 1.114
+        else:
+            kw.update(sensor="kinect_v1", misregister=MIS, degrade=S2["degrade"])
+        ds = SyntheticDataset(**kw)
         return [ds[i] for i in range(n)], 1 / 1.114
     if row in ("synth_room", "synth_room_true"):
         fs = 1.114 if row == "synth_room" else 1.0

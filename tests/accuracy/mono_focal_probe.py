@@ -3,13 +3,14 @@
     PYTHONPATH=.:tests python tests/accuracy/mono_focal_probe.py ROW [--frames 60] [--set gap=3 ...]
 
 ROW: ``s2_blur_7scenes`` (teddy s2_blur handed out at the depth focal, true scale 1/1.114), ``s2_blur``
-(right focal, true 1), ``s3_blur`` (the 3x playback, right focal), ``teddy`` (TUM teddy 200, true 1), ``synth_loop`` (the synthetic orbit loop at
-focal_scale 1.114), ``kitti01``, ``kitti06``, ``euroc`` (true 1), ``synth_room`` (the synthetic room scanned by a hand-held pan, tests/helpers/room_scan.py, focal_scale 1.114;
-``synth_room_true`` at the true focal), ``synth_loop_true`` (the orbit at its true focal),
+(right focal, true 1), ``s3_blur`` (the 3x playback, right focal), ``teddy`` (TUM teddy 200, true 1),
+``synth_loop`` (the synthetic orbit loop at focal_scale 1.114), ``synth_loop_true`` (the orbit at its true
+focal), ``kitti01``, ``kitti06``, ``euroc`` (true 1), ``synth_room`` (the synthetic room scanned by a
+hand-held pan, tests/helpers/room_scan.py, focal_scale 1.114; ``synth_room_true`` at the true focal),
 ``synth_room1000`` / ``synth_room1000_kinect`` (the long synthetic room's walk at focal x1.114, exact / the
-tracking suite's kinect row).
+tracking suite's kinect row). Data root: $GSSLAM_DATA (default ../shared/data).
 Prints the estimate, each window's minimum and the summed profile (docs/results.md, "Mono focal length,
-session 10").
+sessions 10 and 13").
 """
 import argparse
 import os

@@ -85,8 +85,8 @@ def test_profile_restarted_at_other_focals_leaves_a_wrong_basin():
 def test_wrong_focal_of_a_room_scan_found_from_flow():
     frames = _room(KINECT)
     est = mf.estimate_mono_focal(frames, make_flow_estimator(FlowConfig()), **FAST)
-    # measured 0.920 for the true 0.898 (DIS flow leaves a +2.5 % bias, also on teddy); gain 0.39 (three starts,
-    # session 13: 0.921, gain 0.37, windows 0.926 / 0.895 / 0.918). With
+    # measured 0.920 for the true 0.898 (DIS flow leaves a +2.5 % bias, also on teddy); gain 0.39
+    # (three starts, session 13: 0.921, gain 0.37, windows 0.926 / 0.895 / 0.918). With
     # opencv 4.14 the third window's farthest pair triangulates points that PnP cannot fit (20 of 257
     # inliers); the nearer pair it then tries is right (window scale 0.917)
     assert est.ok and est.windows == 3 and est.gain > 0.2, est

@@ -20,9 +20,13 @@ The estimate (deterministic):
    enough parallax, triangulation, PnP for the others; without two-view geometry (a pan, little
    parallax) rotations from homographies and no translation; then the local BA
    (``two_view.bundle_adjust``). Windows with too few tracks or no homography are left out.
-3. The profile: for each focal scale on a grid (``scales``, outwards from 1 with the previous BA as the
-   start, so the profile is continuous), the BA at that focal and the Cauchy cost of all tracks at its
-   poses (``mono_init.track_cost``); summed over windows. The estimate is the grid minimum refined by a
+3. The profile: for each focal scale on a grid (``scales``, outwards from a start scale with the previous
+   BA as the start, so the profile is continuous), the BA at that focal and the Cauchy cost of all tracks
+   at its poses (``mono_init.track_cost``). Step 2 and the sweep are repeated from each of ``starts``
+   (1, 0.9 and 1.1: the two-view pose at that focal) and the lowest cost per scale is kept: a focal 11 %
+   too long turns a lateral translation into rotation (the two-view pose is 20-40 deg off) and a BA
+   started there can stay in that basin, its minimum on the wrong side of 1 (the long synthetic room,
+   docs/results.md session 13). Summed over windows; the estimate is the grid minimum refined by a
    parabola.
 4. The confidence: the windows vote too (each window's own minimum); the estimate is ``ok`` when the
    minimum is inside the grid, enough windows took part, the summed cost at the estimate is lower than
@@ -56,6 +60,7 @@ THRESHOLD_PX = 1.0  # Huber (BA) and Cauchy (cost) kernel, point-map pixels
 MIN_TRACKS = 60
 MIN_PARALLAX_DEG = 1.0
 DEFAULT_SCALES = np.round(np.arange(0.80, 1.2001, 0.02), 4)  # focal scales tried (estimated / given)
+DEFAULT_STARTS = (1.0, 0.9, 1.1)  # focal scales each window's poses are initialised at (window_profile)
 
 
 @dataclass(frozen=True)
@@ -156,23 +161,29 @@ def _rotation_init(K: np.ndarray, win: TrackWindow):  # -> (T_i_0 [W, 4, 4], rho
 
 
 def window_profile(
-    intr: CameraIntrinsics, win: TrackWindow, scales: np.ndarray
+    intr: CameraIntrinsics, win: TrackWindow, scales: np.ndarray, starts: tuple[float, ...] = DEFAULT_STARTS
 ) -> np.ndarray | None:  # [S] Cauchy cost per scale, None when the window has no two-view geometry
-    """The window's BA cost at each focal scale (module doc, step 3)."""
+    """The window's BA cost at each focal scale (module doc, step 3): for each start scale, the poses
+    initialised at that focal and the BA swept outwards from it, warm-started; the lowest cost per scale
+    over the starts (a profile is a minimum over poses: a start far from the truth may stay in another
+    basin, docs/results.md session 13)."""
     scales = np.asarray(scales, np.float64)
-    init = _init_poses(intr.K, win)
-    if init is None:
-        return None
-    T1, rho1, mask = init
-    uv0, obs = win.uv0[mask], win.obs[:, mask]
-    costs = np.full(len(scales), np.nan)
-    j1 = int(np.argmin(np.abs(scales - 1.0)))
-    for order in (range(j1, len(scales)), range(j1, -1, -1)):  # outwards from 1, warm-started
-        T, rho = T1, rho1
-        for j in order:
-            K = intr.with_focal(float(scales[j])).K
-            T, rho = bundle_adjust(K, T, uv0, rho, obs, THRESHOLD_PX)
-            costs[j] = track_cost(K, T, win.uv0, win.obs, THRESHOLD_PX)
+    costs = np.full(len(scales), np.inf)
+    for s0 in starts:
+        j0 = int(np.argmin(np.abs(scales - s0)))
+        init = _init_poses(intr.with_focal(float(scales[j0])).K, win)
+        if init is None:
+            if s0 == starts[0]:
+                return None
+            continue
+        T0, rho0, mask = init
+        uv0, obs = win.uv0[mask], win.obs[:, mask]
+        for order in (range(j0, len(scales)), range(j0, -1, -1)):  # outwards from the start, warm-started
+            T, rho = T0, rho0
+            for j in order:
+                K = intr.with_focal(float(scales[j])).K
+                T, rho = bundle_adjust(K, T, uv0, rho, obs, THRESHOLD_PX)
+                costs[j] = min(costs[j], track_cost(K, T, win.uv0, win.obs, THRESHOLD_PX))
     return costs
 
 
@@ -189,6 +200,7 @@ def estimate_mono_focal(
     min_gain: float = 0.05,
     agree: float = 0.04,
     seed: int = 0,
+    starts: tuple[float, ...] = DEFAULT_STARTS,
 ) -> MonoFocalEstimate:
     """The focal scale (estimated / given) from the flow of ``frames`` (module doc)."""
     xs = DEFAULT_SCALES if scales is None else np.asarray(scales, np.float64)
@@ -199,7 +211,7 @@ def estimate_mono_focal(
     profiles, tracks = [], 0
     for start in range(0, len(frames) - span, stride):
         win = window_tracks(imgs[start : start + span + 1 : gap], flow, max_points, rng)
-        p = window_profile(intr, win, xs)
+        p = window_profile(intr, win, xs, starts)
         if p is None or not np.isfinite(p).all():
             continue
         profiles.append(p)

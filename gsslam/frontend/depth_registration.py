@@ -62,6 +62,7 @@ class DepthRegistration:
     pairs: int = 0
     points: int = 0
     ok: bool = False  # enough pairs and points, minimum inside the scanned range
+    given_by_config: bool = False  # given (encoder.colour_registration_*), not estimated
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -210,6 +211,23 @@ def registration_correction(
         "applied" if apply else "not applied",
     )  # fmt: skip
     return (est if apply else IDENTITY), est
+
+
+def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
+    """The registration a run used and the estimate behind it, for ``metrics.json``."""
+    rec: dict = {
+        "given": applied.given_by_config, "applied": not applied.is_identity(),
+        "ratio_applied": float(applied.ratio), "baseline_m_applied": float(applied.baseline_m),
+    }  # fmt: skip
+    if est is not None:
+        rec.update({
+            "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),
+            "intrinsics_given_for": est.given, "pairs": est.pairs, "points": est.points, "ok": est.ok,
+            "cost_px_at_1": est.cost_registered, "cost_px_at_ratio": est.cost,
+        })  # fmt: skip
+    else:
+        rec["intrinsics_given_for"] = applied.given
+    return rec
 
 
 def reproject_depth(

@@ -63,6 +63,7 @@ class DepthRegistration:
     points: int = 0
     ok: bool = False  # enough pairs and points, minimum inside the scanned range
     given_by_config: bool = False  # given (encoder.colour_registration_*), not estimated
+    pair_baselines_m: tuple[float, ...] = ()  # the baseline fitted to each pair alone at this k (its spread)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -174,6 +175,23 @@ def estimate_registration(frames: list[Frame], flow: FlowEstimator, **kw) -> Dep
     return fit_registration(flow_pairs(frames, flow), frames[0].intrinsics, **kw)
 
 
+def pair_baselines(pairs: list[FlowPair], intr: CameraIntrinsics, reg: DepthRegistration) -> tuple[float, ...]:
+    """The baseline that fits each pair alone at ``reg``'s ``k`` (its ICP motion at that focal length).
+
+    Their spread is the estimate's own uncertainty: the baseline moves the predicted flow by ~0.02 px
+    (a turn of ``theta`` separates the two camera centres by ``theta b``), so an ICP translation error
+    or a flow bias of that size moves it by centimetres (docs/results.md, session 13)."""
+    Ts = [p.T_b_a for p in pairs] if reg.given == "depth" else _icp_at(pairs, intr, reg.ratio, ICP_STRIDES)
+    if Ts is None:
+        return ()
+    bs = np.arange(-BASELINE_RANGE_M - 0.04, BASELINE_RANGE_M + 0.04 + 1e-9, 0.002)
+    out = []
+    for p, T in zip(pairs, Ts):
+        cost = np.array([_scan_k([p], [T], intr, reg.given, np.array([reg.ratio]), float(b))[0] for b in bs])
+        out.append(round(parabola_min(bs, cost)[0], 5))
+    return tuple(out)
+
+
 def registration_correction(
     frames: list[Frame],
     flow: FlowEstimator,
@@ -204,11 +222,13 @@ def registration_correction(
     if unregistered(est):
         est = fit_registration(pairs, intr)
     apply = unregistered(est)
+    if apply:
+        est = replace(est, pair_baselines_m=pair_baselines(pairs, intr, est))
     log.info(
         "depth registration: f_depth / f_colour = %.4f, baseline %.1f mm, given intrinsics of the %s camera, "
-        "from %d pairs (%d px; %.2f -> %.2f px): %s",
+        "from %d pairs (%d px; %.2f -> %.2f px): %s; baseline of each pair alone (mm): %s",
         est.ratio, 1000 * est.baseline_m, est.given, est.pairs, est.points, est.cost_registered, est.cost,
-        "applied" if apply else "not applied",
+        "applied" if apply else "not applied", " ".join(f"{1000 * b:.1f}" for b in est.pair_baselines_m),
     )  # fmt: skip
     return (est if apply else IDENTITY), est
 
@@ -224,6 +244,7 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
             "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),
             "intrinsics_given_for": est.given, "pairs": est.pairs, "points": est.points, "ok": est.ok,
             "cost_px_at_1": est.cost_registered, "cost_px_at_ratio": est.cost,
+            "pair_baselines_m": list(est.pair_baselines_m),
         })  # fmt: skip
     else:
         rec["intrinsics_given_for"] = applied.given

@@ -175,7 +175,9 @@ def estimate_registration(frames: list[Frame], flow: FlowEstimator, **kw) -> Dep
     return fit_registration(flow_pairs(frames, flow), frames[0].intrinsics, **kw)
 
 
-def pair_baselines(pairs: list[FlowPair], intr: CameraIntrinsics, reg: DepthRegistration) -> tuple[float, ...]:
+def pair_baselines(
+    pairs: list[FlowPair], intr: CameraIntrinsics, reg: DepthRegistration
+) -> tuple[float, ...]:
     """The baseline that fits each pair alone at ``reg``'s ``k`` (its ICP motion at that focal length).
 
     Their spread is the estimate's own uncertainty: the baseline moves the predicted flow by ~0.02 px

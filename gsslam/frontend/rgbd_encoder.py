@@ -132,7 +132,9 @@ class ColourDepthCheck:
         if self.pairs >= self.min_pairs and not self.min_ratio <= r <= self.max_ratio and not self._latched:
             self._latched = True
             self.latched_at = self.pairs
-            log.info("colour/depth check: PnP / ICP rotation ratio %.3f after %d pairs: latched", r, self.pairs)
+            log.info(
+                "colour/depth check: PnP / ICP rotation ratio %.3f after %d pairs: latched", r, self.pairs
+            )
 
     @property
     def ratio(self) -> float:

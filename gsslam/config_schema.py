@@ -68,6 +68,7 @@ class EncoderConfig:
     colour_focal_fallback_gap: int = 2  # frame pairs this far apart when 4 apart gives too few (a quick hand); 0: off
     colour_registration_ratio: float = 0.0  # RGB-D: > 0 GIVES the registration's f_depth / f_colour (no estimate; a measuring instrument)
     colour_registration_baseline_m: float = 0.0  # ... with this depth-to-colour baseline along x (m)
+    colour_registration_depth_mean_tol: float = 0.0  # re-projected depth: mean of the samples within this relative depth of the nearest (0: nearest)
     colour_registration_given: str = "depth"  # ... and the dataset's intrinsics belong to this camera (depth | colour)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)

@@ -64,6 +64,9 @@ class DepthRegistration:
     ok: bool = False  # enough pairs and points, minimum inside the scanned range
     given_by_config: bool = False  # given (encoder.colour_registration_*), not estimated
     pair_baselines_m: tuple[float, ...] = ()  # the baseline fitted to each pair alone at this k (its spread)
+    depth_mean_tol: float = (
+        0.0  # reproject_depth: average the samples within this relative depth of the nearest
+    )
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -258,11 +261,15 @@ def reproject_depth(
     depth_intr: CameraIntrinsics,
     colour_intr: CameraIntrinsics,
     baseline_m: float,  # the depth camera's centre in the colour camera frame, along x
+    mean_tol: float = 0.0,  # > 0: the mean of the samples within this relative depth of the nearest
 ) -> np.ndarray:  # [H, W] float32 metres at the colour pixels, NaN where nothing lands
     """Depth seen from the colour camera: back-project, shift by the baseline, project, nearest wins.
 
     A magnifying projection (colour focal longer than depth's) fills the up-to-4 pixels around each
-    projection so that no cracks open; otherwise each point lands on its nearest pixel.
+    projection so that no cracks open; otherwise each point lands on its nearest pixel. Where several
+    noisy samples of one surface land on a pixel (a Kinect v1's depth camera samples 1.114x finer than
+    its colour camera) the nearest is the noise's minimum, biased towards the camera; ``mean_tol`` > 0
+    averages the samples within ``mean_tol * z`` of the nearest instead (the nearest surface still wins).
     """
     h, w = depth.shape
     vs, us = np.nonzero(np.isfinite(depth) & (depth > 0))
@@ -281,9 +288,18 @@ def reproject_depth(
     else:
         cands = [(np.rint(u), np.rint(v))]
     out = np.full(h * w, np.inf)
+    hits = []
     for uu, vv in cands:
         ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-        np.minimum.at(out, (vv[ok] * w + uu[ok]).astype(np.int64), z[ok])
+        hits.append(((vv[ok] * w + uu[ok]).astype(np.int64), z[ok]))
+        np.minimum.at(out, *hits[-1])
+    if mean_tol > 0:
+        idx = np.concatenate([i for i, _ in hits])
+        zz = np.concatenate([q for _, q in hits])
+        near = zz <= out[idx] * (1.0 + mean_tol)  # the nearest surface's samples
+        tot = np.bincount(idx[near], zz[near], h * w)
+        cnt = np.bincount(idx[near], None, h * w)
+        out = np.where(cnt > 0, tot / np.maximum(cnt, 1), out)
     out[~np.isfinite(out)] = np.nan
     return out.reshape(h, w).astype(np.float32)
 
@@ -296,6 +312,6 @@ def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     depth = frame.depth
     if depth is not None:
         depth = reproject_depth(
-            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m
+            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m, reg.depth_mean_tol
         )
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

@@ -86,3 +86,21 @@ def test_reproject_depth_undoes_the_misregistration(teddy):
     assert g.intrinsics == TUM_FR3 and g.image is f.image
     assert np.array_equal(np.isfinite(g.depth), np.isfinite(back))
     assert register_frame(f, IDENTITY) is f
+
+
+def test_reproject_depth_mean_of_the_nearest_surface_removes_the_noise_minimum():
+    """Kinect v1 depth (1.114x the colour focal) lands ~1.24 samples on each colour pixel: the nearest of
+    two noisy samples of one wall is biased towards the camera; their mean is not, and a nearer surface
+    still wins over a farther one."""
+    depth_intr = replace(TUM_FR3, fx=TUM_FR3.fx * KINECT_RATIO, fy=TUM_FR3.fy * KINECT_RATIO)
+    rng = np.random.default_rng(0)
+    wall = (3.0 + rng.normal(0.0, 0.013, (TUM_FR3.height, TUM_FR3.width))).astype(np.float32)  # ~z^2 at 3 m
+    nearest = reproject_depth(wall, depth_intr, TUM_FR3, BASELINE_M)
+    mean = reproject_depth(wall, depth_intr, TUM_FR3, BASELINE_M, mean_tol=0.03)
+    assert np.array_equal(np.isfinite(nearest), np.isfinite(mean))
+    # measured -1.7 mm (nearest) and -0.04 mm (mean) over the wall
+    assert np.nanmean(nearest) - 3.0 < -0.001 and abs(np.nanmean(mean) - 3.0) < 0.0003
+    step = wall.copy()
+    step[:, : TUM_FR3.width // 2] = 1.5  # a nearer surface on the left: the wall behind is not mixed in
+    both = reproject_depth(step, depth_intr, TUM_FR3, BASELINE_M, mean_tol=0.03)
+    assert np.nanmax(both[both < 2.0]) == pytest.approx(1.5)

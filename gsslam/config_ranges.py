@@ -93,6 +93,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_registration_baseline_m": Range(-0.2, 0.2),
     "encoder.colour_registration_given": ("depth", "colour"),
     "encoder.colour_registration_depth_mean_tol": Range(0.0, 0.2),
+    "encoder.colour_registration_depth_interp_tol": Range(0.0, 0.2),
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,

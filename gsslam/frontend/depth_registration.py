@@ -64,9 +64,8 @@ class DepthRegistration:
     ok: bool = False  # enough pairs and points, minimum inside the scanned range
     given_by_config: bool = False  # given (encoder.colour_registration_*), not estimated
     pair_baselines_m: tuple[float, ...] = ()  # the baseline fitted to each pair alone at this k (its spread)
-    depth_mean_tol: float = (
-        0.0  # reproject_depth: average the samples within this relative depth of the nearest
-    )
+    depth_mean_tol: float = 0.0  # reproject_depth's mean_tol (0: the nearest sample)
+    depth_interp_tol: float = 0.0  # reproject_depth's interp_tol (0: the pixel a sample lands on)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -262,6 +261,7 @@ def reproject_depth(
     colour_intr: CameraIntrinsics,
     baseline_m: float,  # the depth camera's centre in the colour camera frame, along x
     mean_tol: float = 0.0,  # > 0: the mean of the samples within this relative depth of the nearest
+    interp_tol: float = 0.0,  # > 0: then read the depth image at the exact pixel where its 4 neighbours agree
 ) -> np.ndarray:  # [H, W] float32 metres at the colour pixels, NaN where nothing lands
     """Depth seen from the colour camera: back-project, shift by the baseline, project, nearest wins.
 
@@ -270,6 +270,9 @@ def reproject_depth(
     noisy samples of one surface land on a pixel (a Kinect v1's depth camera samples 1.114x finer than
     its colour camera) the nearest is the noise's minimum, biased towards the camera; ``mean_tol`` > 0
     averages the samples within ``mean_tol * z`` of the nearest instead (the nearest surface still wins).
+    Each sample lands on the nearest pixel, up to half a pixel from where it projects; ``interp_tol`` > 0
+    then reads the depth image bilinearly at the exact depth pixel of each colour pixel (its ray shifted by
+    the baseline at the z-buffer's depth), where the 4 depth pixels lie within ``interp_tol * z`` of it.
     """
     h, w = depth.shape
     vs, us = np.nonzero(np.isfinite(depth) & (depth > 0))
@@ -301,7 +304,37 @@ def reproject_depth(
         cnt = np.bincount(idx[near], None, h * w)
         out = np.where(cnt > 0, tot / np.maximum(cnt, 1), out)
     out[~np.isfinite(out)] = np.nan
-    return out.reshape(h, w).astype(np.float32)
+    out = out.reshape(h, w)
+    if interp_tol > 0:
+        out = _interpolate_at_colour_pixels(out, depth, depth_intr, colour_intr, baseline_m, interp_tol)
+    return out.astype(np.float32)
+
+
+def _interpolate_at_colour_pixels(
+    z_col: np.ndarray,  # [H, W] the z-buffer's depth at the colour pixels, NaN none
+    depth: np.ndarray,  # [H, W] the depth image (depth camera grid)
+    depth_intr: CameraIntrinsics,
+    colour_intr: CameraIntrinsics,
+    baseline_m: float,
+    tol: float,
+) -> np.ndarray:  # [H, W] float64
+    h, w = z_col.shape
+    vs, us = np.nonzero(np.isfinite(z_col))
+    z = z_col[vs, us]
+    ud = depth_intr.cx + depth_intr.fx * ((us - colour_intr.cx) / colour_intr.fx - baseline_m / z)
+    vd = depth_intr.cy + depth_intr.fy * (vs - colour_intr.cy) / colour_intr.fy
+    u0, v0 = np.floor(ud).astype(np.int64), np.floor(vd).astype(np.int64)
+    inside = (u0 >= 0) & (u0 + 1 < w) & (v0 >= 0) & (v0 + 1 < h)
+    vs, us, z, ud, vd, u0, v0 = (a[inside] for a in (vs, us, z, ud, vd, u0, v0))
+    fu, fv = ud - u0, vd - v0
+    d = np.nan_to_num(np.asarray(depth, np.float64), nan=-1.0)
+    q = [d[v0, u0], d[v0, u0 + 1], d[v0 + 1, u0], d[v0 + 1, u0 + 1]]
+    wts = [(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv]
+    agree = np.all([np.abs(x - z) <= tol * z for x in q], axis=0)
+    val = sum(wt * x for wt, x in zip(wts, q))
+    out = z_col.copy()
+    out[vs[agree], us[agree]] = val[agree]
+    return out
 
 
 def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
@@ -312,6 +345,7 @@ def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     depth = frame.depth
     if depth is not None:
         depth = reproject_depth(
-            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m, reg.depth_mean_tol
-        )
+            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m,
+            reg.depth_mean_tol, reg.depth_interp_tol,
+        )  # fmt: skip
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

@@ -223,8 +223,11 @@ def run_dataset(
     with RunFolder(out, overwrite=overwrite, resume=resume):
         rss_scope = "run" if reset_peak_rss() else "process"  # a batch runs many in one process
         reg, focal = colour_registration(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
-        reg = replace(reg, depth_mean_tol=cfg.encoder.colour_registration_depth_mean_tol)
-        if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
+        reg = replace(
+            reg, depth_mean_tol=cfg.encoder.colour_registration_depth_mean_tol,
+            depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
+        )  # fmt: skip
+        if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
         pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))

@@ -66,6 +66,12 @@ class EncoderConfig:
     colour_focal_min_baseline_m: float = 0.01  # ... or |depth-colour baseline| exceeds this (m)
     colour_focal_min_gain: float = 0.15  # ... and the fit lowers the flow reprojection error by this fraction
     colour_focal_fallback_gap: int = 2  # frame pairs this far apart when 4 apart gives too few (a quick hand); 0: off
+    colour_registration_ratio: float = 0.0  # RGB-D: > 0 GIVES the registration's f_depth / f_colour (no estimate; a measuring instrument)
+    colour_registration_baseline_m: float = 0.0  # ... with this depth-to-colour baseline along x (m)
+    colour_registration_depth_mean_tol: float = 0.0  # re-projected depth: mean of the samples within this relative depth of the nearest (0: nearest)
+    colour_registration_icp: bool = True  # a run that registers its depth takes its poses from depth too (forces rgbd_icp)
+    colour_registration_depth_interp_tol: float = 0.0  # re-projected depth: read bilinearly at the exact pixel where the 4 agree within this relative depth (0: nearest pixel)
+    colour_registration_given: str = "depth"  # ... and the dataset's intrinsics belong to this camera (depth | colour)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

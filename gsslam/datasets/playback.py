@@ -159,6 +159,8 @@ class Playback:
         )
         if self.misregistration is not None and not base.has_depth:
             raise PlaybackError("misregister needs a base sequence with depth")
+        if self.misregistration is not None and self.misregistration.raycast:
+            raise PlaybackError("misregister.raycast needs a synthetic scene; playbacks re-project depth")
         self._colour_intrinsics = base.intrinsics
         self.intrinsics = (
             base.intrinsics if self.misregistration is None

@@ -62,6 +62,10 @@ class DepthRegistration:
     pairs: int = 0
     points: int = 0
     ok: bool = False  # enough pairs and points, minimum inside the scanned range
+    given_by_config: bool = False  # given (encoder.colour_registration_*), not estimated
+    pair_baselines_m: tuple[float, ...] = ()  # the baseline fitted to each pair alone at this k (its spread)
+    depth_mean_tol: float = 0.0  # reproject_depth's mean_tol (0: the nearest sample)
+    depth_interp_tol: float = 0.0  # reproject_depth's interp_tol (0: the pixel a sample lands on)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -173,6 +177,25 @@ def estimate_registration(frames: list[Frame], flow: FlowEstimator, **kw) -> Dep
     return fit_registration(flow_pairs(frames, flow), frames[0].intrinsics, **kw)
 
 
+def pair_baselines(
+    pairs: list[FlowPair], intr: CameraIntrinsics, reg: DepthRegistration
+) -> tuple[float, ...]:
+    """The baseline that fits each pair alone at ``reg``'s ``k`` (its ICP motion at that focal length).
+
+    Their spread is the estimate's own uncertainty: the baseline moves the predicted flow by ~0.02 px
+    (a turn of ``theta`` separates the two camera centres by ``theta b``), so an ICP translation error
+    or a flow bias of that size moves it by centimetres (docs/results.md, session 13)."""
+    Ts = [p.T_b_a for p in pairs] if reg.given == "depth" else _icp_at(pairs, intr, reg.ratio, ICP_STRIDES)
+    if Ts is None:
+        return ()
+    bs = np.arange(-BASELINE_RANGE_M - 0.04, BASELINE_RANGE_M + 0.04 + 1e-9, 0.002)
+    out = []
+    for p, T in zip(pairs, Ts):
+        cost = np.array([_scan_k([p], [T], intr, reg.given, np.array([reg.ratio]), float(b))[0] for b in bs])
+        out.append(round(parabola_min(bs, cost)[0], 5))
+    return tuple(out)
+
+
 def registration_correction(
     frames: list[Frame],
     flow: FlowEstimator,
@@ -203,13 +226,33 @@ def registration_correction(
     if unregistered(est):
         est = fit_registration(pairs, intr)
     apply = unregistered(est)
+    if apply:
+        est = replace(est, pair_baselines_m=pair_baselines(pairs, intr, est))
     log.info(
         "depth registration: f_depth / f_colour = %.4f, baseline %.1f mm, given intrinsics of the %s camera, "
-        "from %d pairs (%d px; %.2f -> %.2f px): %s",
+        "from %d pairs (%d px; %.2f -> %.2f px): %s; baseline of each pair alone (mm): %s",
         est.ratio, 1000 * est.baseline_m, est.given, est.pairs, est.points, est.cost_registered, est.cost,
-        "applied" if apply else "not applied",
+        "applied" if apply else "not applied", " ".join(f"{1000 * b:.1f}" for b in est.pair_baselines_m),
     )  # fmt: skip
     return (est if apply else IDENTITY), est
+
+
+def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
+    """The registration a run used and the estimate behind it, for ``metrics.json``."""
+    rec: dict = {
+        "given": applied.given_by_config, "applied": not applied.is_identity(),
+        "ratio_applied": float(applied.ratio), "baseline_m_applied": float(applied.baseline_m),
+    }  # fmt: skip
+    if est is not None:
+        rec.update({
+            "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),
+            "intrinsics_given_for": est.given, "pairs": est.pairs, "points": est.points, "ok": est.ok,
+            "cost_px_at_1": est.cost_registered, "cost_px_at_ratio": est.cost,
+            "pair_baselines_m": list(est.pair_baselines_m),
+        })  # fmt: skip
+    else:
+        rec["intrinsics_given_for"] = applied.given
+    return rec
 
 
 def reproject_depth(
@@ -217,11 +260,19 @@ def reproject_depth(
     depth_intr: CameraIntrinsics,
     colour_intr: CameraIntrinsics,
     baseline_m: float,  # the depth camera's centre in the colour camera frame, along x
+    mean_tol: float = 0.0,  # > 0: the mean of the samples within this relative depth of the nearest
+    interp_tol: float = 0.0,  # > 0: then read the depth image at the exact pixel where its 4 neighbours agree
 ) -> np.ndarray:  # [H, W] float32 metres at the colour pixels, NaN where nothing lands
     """Depth seen from the colour camera: back-project, shift by the baseline, project, nearest wins.
 
     A magnifying projection (colour focal longer than depth's) fills the up-to-4 pixels around each
-    projection so that no cracks open; otherwise each point lands on its nearest pixel.
+    projection so that no cracks open; otherwise each point lands on its nearest pixel. Where several
+    noisy samples of one surface land on a pixel (a Kinect v1's depth camera samples 1.114x finer than
+    its colour camera) the nearest is the noise's minimum, biased towards the camera; ``mean_tol`` > 0
+    averages the samples within ``mean_tol * z`` of the nearest instead (the nearest surface still wins).
+    Each sample lands on the nearest pixel, up to half a pixel from where it projects; ``interp_tol`` > 0
+    then reads the depth image bilinearly at the exact depth pixel of each colour pixel (its ray shifted by
+    the baseline at the z-buffer's depth), where the 4 depth pixels lie within ``interp_tol * z`` of it.
     """
     h, w = depth.shape
     vs, us = np.nonzero(np.isfinite(depth) & (depth > 0))
@@ -240,11 +291,50 @@ def reproject_depth(
     else:
         cands = [(np.rint(u), np.rint(v))]
     out = np.full(h * w, np.inf)
+    hits = []
     for uu, vv in cands:
         ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-        np.minimum.at(out, (vv[ok] * w + uu[ok]).astype(np.int64), z[ok])
+        hits.append(((vv[ok] * w + uu[ok]).astype(np.int64), z[ok]))
+        np.minimum.at(out, *hits[-1])
+    if mean_tol > 0:
+        idx = np.concatenate([i for i, _ in hits])
+        zz = np.concatenate([q for _, q in hits])
+        near = zz <= out[idx] * (1.0 + mean_tol)  # the nearest surface's samples
+        tot = np.bincount(idx[near], zz[near], h * w)
+        cnt = np.bincount(idx[near], None, h * w)
+        out = np.where(cnt > 0, tot / np.maximum(cnt, 1), out)
     out[~np.isfinite(out)] = np.nan
-    return out.reshape(h, w).astype(np.float32)
+    out = out.reshape(h, w)
+    if interp_tol > 0:
+        out = _interpolate_at_colour_pixels(out, depth, depth_intr, colour_intr, baseline_m, interp_tol)
+    return out.astype(np.float32)
+
+
+def _interpolate_at_colour_pixels(
+    z_col: np.ndarray,  # [H, W] the z-buffer's depth at the colour pixels, NaN none
+    depth: np.ndarray,  # [H, W] the depth image (depth camera grid)
+    depth_intr: CameraIntrinsics,
+    colour_intr: CameraIntrinsics,
+    baseline_m: float,
+    tol: float,
+) -> np.ndarray:  # [H, W] float64
+    h, w = z_col.shape
+    vs, us = np.nonzero(np.isfinite(z_col))
+    z = z_col[vs, us]
+    ud = depth_intr.cx + depth_intr.fx * ((us - colour_intr.cx) / colour_intr.fx - baseline_m / z)
+    vd = depth_intr.cy + depth_intr.fy * (vs - colour_intr.cy) / colour_intr.fy
+    u0, v0 = np.floor(ud).astype(np.int64), np.floor(vd).astype(np.int64)
+    inside = (u0 >= 0) & (u0 + 1 < w) & (v0 >= 0) & (v0 + 1 < h)
+    vs, us, z, ud, vd, u0, v0 = (a[inside] for a in (vs, us, z, ud, vd, u0, v0))
+    fu, fv = ud - u0, vd - v0
+    d = np.nan_to_num(np.asarray(depth, np.float64), nan=-1.0)
+    q = [d[v0, u0], d[v0, u0 + 1], d[v0 + 1, u0], d[v0 + 1, u0 + 1]]
+    wts = [(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv]
+    agree = np.all([np.abs(x - z) <= tol * z for x in q], axis=0)
+    val = sum(wt * x for wt, x in zip(wts, q))
+    out = z_col.copy()
+    out[vs[agree], us[agree]] = val[agree]
+    return out
 
 
 def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
@@ -255,6 +345,7 @@ def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     depth = frame.depth
     if depth is not None:
         depth = reproject_depth(
-            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m
-        )
+            depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m,
+            reg.depth_mean_tol, reg.depth_interp_tol,
+        )  # fmt: skip
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

@@ -119,6 +119,7 @@ class ColourDepthCheck:
         self._ab = 0.0
         self._bb = 0.0
         self._latched = False
+        self.latched_at = 0  # the pair count at which the mismatch latched (0: not latched)
 
     def add(self, T_pnp: np.ndarray, T_icp: np.ndarray) -> None:  # [4, 4] each, the same motion
         a, b = so3_log(T_pnp[:3, :3]), so3_log(T_icp[:3, :3])
@@ -128,8 +129,12 @@ class ColourDepthCheck:
         self._ab += float(a @ b)
         self._bb += float(b @ b)
         r = self.ratio
-        if self.pairs >= self.min_pairs and not self.min_ratio <= r <= self.max_ratio:
+        if self.pairs >= self.min_pairs and not self.min_ratio <= r <= self.max_ratio and not self._latched:
             self._latched = True
+            self.latched_at = self.pairs
+            log.info(
+                "colour/depth check: PnP / ICP rotation ratio %.3f after %d pairs: latched", r, self.pairs
+            )
 
     @property
     def ratio(self) -> float:

@@ -31,7 +31,13 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
-from gsslam.frontend.depth_registration import IDENTITY, register_frame, registration_correction
+from gsslam.frontend.depth_registration import (
+    IDENTITY,
+    DepthRegistration,
+    register_frame,
+    registration_correction,
+    registration_record,
+)
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.mono_focal import mono_focal_correction, rescale_focal
 from gsslam.run.checkpoint import (
@@ -217,7 +223,11 @@ def run_dataset(
     with RunFolder(out, overwrite=overwrite, resume=resume):
         rss_scope = "run" if reset_peak_rss() else "process"  # a batch runs many in one process
         reg, focal = colour_registration(ds, cfg, max_frames)  # deterministic: a resumed run finds the same
-        if not reg.is_identity():  # unregistered depth: re-projected into the colour camera
+        reg = replace(
+            reg, depth_mean_tol=cfg.encoder.colour_registration_depth_mean_tol,
+            depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
+        )  # fmt: skip
+        if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
         pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))
@@ -269,12 +279,13 @@ def run_dataset(
                 "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
                 "peak_rss_scope": rss_scope,
             }
-            if focal is not None:
-                extra["colour_focal"] = {
-                    "ratio_estimated": float(focal.ratio), "applied": not reg.is_identity(),
-                    "pairs": focal.pairs,
-                    "baseline_m_estimated": float(focal.baseline_m), "intrinsics_given_for": focal.given,
-                    "cost_px_at_1": focal.cost_registered, "cost_px_at_ratio": focal.cost,
+            if focal is not None or reg.given_by_config:
+                extra["colour_focal"] = registration_record(reg, focal)
+            check = getattr(pipe.encoder, "check", None)  # RGB-D: the encoder's ColourDepthCheck
+            if check is not None:
+                extra["colour_depth_check"] = {
+                    "pairs": check.pairs, "pnp_icp_rotation_ratio": check.ratio,
+                    "latched": check.mismatch, "latched_at_pair": getattr(check, "latched_at", 0),
                 }  # fmt: skip
             if mono_focal is not None:
                 extra["mono_focal"] = {
@@ -297,9 +308,17 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     run estimates it; a run that applies a registration also takes its poses from depth (``rgbd_icp``).
     Windows of ``encoder.colour_focal_frames`` are read in turn, up to ``colour_focal_max_frames``, until
     one gives the estimate evidence (``ok``); none: a warning, and the depth is used as given."""
-    if cfg.mode != "rgbd" or not cfg.encoder.colour_focal_auto:
-        return IDENTITY, None
     enc = cfg.encoder
+    if cfg.mode == "rgbd" and enc.colour_registration_ratio > 0:  # given: no estimate
+        reg = DepthRegistration(
+            enc.colour_registration_ratio, enc.colour_registration_baseline_m, enc.colour_registration_given,
+            ok=True, given_by_config=True,
+        )  # fmt: skip
+        log.info("depth-to-colour registration given: k %.4f, baseline %.1f mm, intrinsics of the %s camera",
+                 reg.ratio, 1000 * reg.baseline_m, reg.given)  # fmt: skip
+        return reg, None
+    if cfg.mode != "rgbd" or not enc.colour_focal_auto:
+        return IDENTITY, None
     end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
     flow = make_flow_estimator(cfg.flow)
     reg, est, start = IDENTITY, None, 0

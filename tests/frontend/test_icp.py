@@ -65,6 +65,7 @@ def test_colour_depth_check_flags_a_wrong_colour_focal_length():
             if k < 7:
                 assert not check.mismatch  # needs 8 pairs
         assert np.isclose(check.ratio, factor, atol=0.02) and check.mismatch == expect
+        assert check.latched_at == (8 if expect else 0)  # the pair count at the latch (metrics.json)
     check = ColourDepthCheck(0.96, 1.08)
     for _ in range(20):
         check.add(_rot([0.0, 0.2, 0.0]), _rot([0.0, 0.3, 0.0]))  # below 0.5 deg: no evidence

@@ -208,8 +208,13 @@ class SyntheticDataset:
             image = apply_exposure(image, deg.gain(index))
         depth_intr = self.true_intrinsics
         if mr is not None:
-            depth = misregister_depth(depth, self.true_intrinsics, mr.baseline_m, mr.focal_scale)
             depth_intr = mr.depth_intrinsics(self.true_intrinsics)
+            if mr.raycast:  # the depth camera itself, at x = baseline_m in the colour camera
+                T_cam_depth = np.eye(4)
+                T_cam_depth[0, 3] = mr.baseline_m
+                depth = self.scene.cast(self._poses[index] @ T_cam_depth, depth_intr)[1].astype(np.float32)
+            else:
+                depth = misregister_depth(depth, self.true_intrinsics, mr.baseline_m, mr.focal_scale)
         if self.sensor is not None:
             rng = np.random.default_rng([self.seed, index, 1])
             depth = kinect_v1_depth(depth, depth_intr, self.sensor, rng)

@@ -24,7 +24,9 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
 Low parallax / pure rotation (or no texture): no triangulation. With ``shared_depth`` the
 poses come from PnP against the shared frame's depth and depths are propagated from it
 (confidence 0.5); without it, rotations come from homographies, translations are zero and the
-point maps are empty (confidence 0). ``meta["degenerate"]`` and ``meta["reason"]`` say which.
+point maps are empty (confidence 0). ``meta["degenerate"]`` and ``meta["reason"]`` say which. In a
+turn (``encoder.mono_turn_rotation``) a frame whose view has left the shared depth is posed against a
+plane (rotation only); a window whose shared depth is a placeholder sets ``meta["shared_placeholder"]``.
 """
 
 from __future__ import annotations

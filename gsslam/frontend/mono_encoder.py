@@ -356,7 +356,8 @@ class MonoEncoder:
             if res.T_tgt_src is None and self.cfg.mono_turn_rotation and not placeholder:
                 # the turn has left the carried depth behind: every flow match against a plane at its
                 # median depth, a rotation-only model (at zero parallax the depth does not enter)
-                uv0, uvi, z = random_flow_matches(fw[i], valid[i], plane, self.cfg.max_points_per_frame, self.rng)
+                m = self.cfg.max_points_per_frame
+                uv0, uvi, z = random_flow_matches(fw[i], valid[i], plane, m, self.rng)
                 res = pnp(backproject(K, uv0, z), uvi, K, thr, self.cfg.min_inliers)
                 if res.T_tgt_src is not None:
                     meta.setdefault("pnp_rotation_only", []).append(i)

@@ -64,7 +64,7 @@ def report(run: Path, segments: list[int], seg_align: str = "se3") -> str:
         f"{float(np.sqrt(np.mean(rpe.rotation_errors_deg ** 2))):.3f} deg, "
         f"loops {lc.get('detected', 0)}/{lc.get('accepted', 0)}/{lc.get('rejected', 0)}; "
         f"segments {segments} own-aligned ({seg_align}) cm {['%.2f' % x for x in seg_own]} "
-        + (f"scales {['%.3f' % x for x in seg_scale]} " if seg_align == "sim3" else "")
+        + (f"scales {[f'{x:.3f}' for x in seg_scale]} " if seg_align == "sim3" else "")
         + f"whole-aligned cm {['%.2f' % x for x in seg_whole]}; kf {m.get('keyframes')} events {ev_s}"
     )
 

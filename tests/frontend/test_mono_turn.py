@@ -24,10 +24,9 @@ def _encoder(**enc):
 
 def _rotation_errors(enc, frames) -> np.ndarray:  # [n - 1] deg
     gt = np.stack([f.T_world_cam_gt for f in frames])
-    return np.array([
-        np.degrees(np.linalg.norm(so3_log(enc.T_local_cam[i, :3, :3].T @ (np.linalg.inv(gt[0]) @ gt[i])[:3, :3])))
-        for i in range(1, len(frames))
-    ])  # fmt: skip
+    R = [(np.linalg.inv(gt[0]) @ gt[i])[:3, :3] for i in range(1, len(frames))]
+    err = [so3_log(enc.T_local_cam[i, :3, :3].T @ Ri) for i, Ri in enumerate(R, 1)]
+    return np.degrees(np.linalg.norm(err, axis=1))
 
 
 @pytest.fixture(scope="module")

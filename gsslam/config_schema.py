@@ -76,7 +76,7 @@ class EncoderConfig:
     mono_two_view_hypotheses: int = 1  # mono: two-view poses (RANSAC samples) carried through PnP + BA; the best over all tracks is kept
     mono_link_weighted: bool = False  # mono: the scale link to the previous submap weighted by both depths' confidence (frontend/mono_link.py)
     mono_link_min_confidence: float = 0.0  # mono: with mono_link_weighted, pixels whose lower confidence is below this are not used
-    mono_turn_rotation: bool = False  # mono: a low-parallax window keeps its rotation where PnP against the carried depth fails (PnP against a plane: a rotation-only model) instead of copying the previous pose
+    mono_turn_rotation: bool = True  # mono: a low-parallax window keeps its rotation where PnP against the carried depth fails (PnP against a plane: a rotation-only model) instead of copying the previous pose
     mono_focal_auto: bool = False  # mono: focal self-calibration from the first frames (frontend/mono_focal.py); off: docs/results.md session 10
     mono_focal_frames: int = 60  # frames read for that estimate
     mono_focal_min_dev: float = 0.05  # correct the focal only when |estimate / given - 1| exceeds this

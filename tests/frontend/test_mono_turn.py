@@ -2,7 +2,7 @@
 
 In a rotation-dominated turn the shared frame's depth (carried from the last window with parallax)
 covers less of each new view; PnP against it fails once the view has left it. The window must keep
-its rotation then (``encoder.mono_turn_rotation``), and a window whose shared depth is only a
+its rotation then (``encoder.mono_turn_rotation``, on by default), and a window whose shared depth is only a
 placeholder plane must say that its scale is a guess (``meta["shared_placeholder"]``).
 """
 
@@ -43,12 +43,12 @@ def turn():
 
 def test_turn_keeps_its_rotation_where_the_carried_depth_is_left_behind(turn):
     frames, carried = turn
-    old = _encoder().encode(frames, shared_depth=carried)
+    old = _encoder(mono_turn_rotation=False).encode(frames, shared_depth=carried)  # before session 13
     assert old.meta["reason"] == "low_parallax_shared_depth"
     assert old.meta["pnp_failed"] == [4, 5, 6]  # the view has left the strip: poses copied
     assert _rotation_errors(old, frames).max() > 8.0  # measured 9.2 deg: the turn is lost
 
-    enc = _encoder(mono_turn_rotation=True).encode(frames, shared_depth=carried)
+    enc = _encoder().encode(frames, shared_depth=carried)  # the default
     assert enc.meta["pnp_failed"] == [] and enc.meta["pnp_rotation_only"] == [4, 5, 6]
     err = _rotation_errors(enc, frames)
     assert err.max() < 0.3, err  # measured 0.08 deg

@@ -98,6 +98,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,
     "graph.scale_sigma": POS,
+    "graph.mono_placeholder_scale_sigma": NONNEG,
     "graph.adjacency_sigma_m": POS,
     "graph.loop_sigma_m": POS,
     "graph.depth_prior_sigma": POS,

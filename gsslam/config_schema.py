@@ -82,6 +82,7 @@ class EncoderConfig:
     mono_two_view_hypotheses: int = 1  # mono: two-view poses (RANSAC samples) carried through PnP + BA; the best over all tracks is kept
     mono_link_weighted: bool = False  # mono: the scale link to the previous submap weighted by both depths' confidence (frontend/mono_link.py)
     mono_link_min_confidence: float = 0.0  # mono: with mono_link_weighted, pixels whose lower confidence is below this are not used
+    mono_turn_rotation: bool = True  # mono: a low-parallax window keeps its rotation where PnP against the carried depth fails (PnP against a plane: a rotation-only model) instead of copying the previous pose
     mono_focal_auto: bool = False  # mono: focal self-calibration from the first frames (frontend/mono_focal.py); off: docs/results.md sessions 10, 13
     mono_focal_frames: int = 60  # frames read for that estimate
     mono_focal_min_dev: float = 0.05  # correct the focal only when |estimate / given - 1| exceeds this
@@ -94,6 +95,7 @@ class GraphConfig:
     flow_inlier_prior: float = 0.9  # inlier probability of the robust flow likelihood
     flow_outlier_range_px: float = 50.0  # width of the uniform outlier density
     scale_sigma: float = 0.05  # std of the log-scale drift factor
+    mono_placeholder_scale_sigma: float = 0.0  # mono: std of the log-scale factor of a submap whose shared frame had only a placeholder depth (a low-parallax turn: its scale was guessed, not measured); 0: scale_sigma
     adjacency_sigma_m: float = (
         0.05  # aggregate std of a submap pair's shared-frame points (per point: * sqrt(N))
     )

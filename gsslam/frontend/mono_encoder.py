@@ -24,7 +24,9 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
 Low parallax / pure rotation (or no texture): no triangulation. With ``shared_depth`` the
 poses come from PnP against the shared frame's depth and depths are propagated from it
 (confidence 0.5); without it, rotations come from homographies, translations are zero and the
-point maps are empty (confidence 0). ``meta["degenerate"]`` and ``meta["reason"]`` say which.
+point maps are empty (confidence 0). ``meta["degenerate"]`` and ``meta["reason"]`` say which. In a
+turn (``encoder.mono_turn_rotation``) a frame whose view has left the shared depth is posed against a
+plane (rotation only); a window whose shared depth is a placeholder sets ``meta["shared_placeholder"]``.
 """
 
 from __future__ import annotations
@@ -105,6 +107,10 @@ class MonoEncoder:
             sc = resize_depth(np.nan_to_num(np.asarray(shared_confidence, np.float32)), intr)
         fw, bw, valid = chained_flows(imgs, self.flow, FB_THRESHOLD_PX, self.cfg.min_texture_gradient)
         meta: dict = {"degenerate": False, "reason": "ok", "pnp_failed": [], "scale_source": "median_depth"}
+        if sd is not None and (_is_constant(sd) or np.isfinite(sd).sum() < cfg.min_inliers):
+            # the shared frame has no measured depth (a low-parallax turn left a placeholder plane):
+            # this submap's scale is a guess, and the graph's scale link says so (graph/submap_graph.py)
+            meta["shared_placeholder"] = True
 
         # two-view initialisation against the farthest usable frame
         tv, ref = None, None
@@ -176,6 +182,8 @@ class MonoEncoder:
             g = 1.0  # the shared depth held it, track by track
         T_i_0[:, :3, 3] *= g
         T_local = np.stack([invert_T(T) for T in T_i_0])
+        if meta.get("shared_placeholder"):
+            meta["scale_source"] = "placeholder"
 
         points, conf = self._dense_depth(imgs, fw, bw, valid, T_local, intr)
         if sd is not None and not _is_constant(sd):
@@ -340,10 +348,19 @@ class MonoEncoder:
             c0 = PROPAGATED_CONFIDENCE
         P0 = depth_to_points(K, sd)
         points[0], conf[0] = P0, np.where(np.isfinite(sd), c0, 0.0)
+        thr = 2.0 * self.cfg.ransac_threshold_px
+        plane = np.full((h, w), float(np.nanmedian(sd)), np.float32)
         for i in range(1, n):
             uv0, uvi, z = random_flow_matches(fw[i], valid[i], sd, self.cfg.max_points_per_frame, self.rng)
-            thr = 2.0 * self.cfg.ransac_threshold_px
             res = pnp(backproject(K, uv0, z), uvi, K, thr, self.cfg.min_inliers)
+            if res.T_tgt_src is None and self.cfg.mono_turn_rotation and not placeholder:
+                # the turn has left the carried depth behind: every flow match against a plane at its
+                # median depth, a rotation-only model (at zero parallax the depth does not enter)
+                m = self.cfg.max_points_per_frame
+                uv0, uvi, z = random_flow_matches(fw[i], valid[i], plane, m, self.rng)
+                res = pnp(backproject(K, uv0, z), uvi, K, thr, self.cfg.min_inliers)
+                if res.T_tgt_src is not None:
+                    meta.setdefault("pnp_rotation_only", []).append(i)
             if res.T_tgt_src is None:
                 meta["pnp_failed"].append(i)
                 T_local[i] = T_local[i - 1]

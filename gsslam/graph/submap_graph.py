@@ -104,7 +104,10 @@ class SubmapGraph:
             self._add(stretch.alignment_spec(i, Z, cfg.align_rot_sigma, cfg.align_trans_sigma))
         else:
             self._add(spec("submap_alignment", a, b, Z, cfg.align_rot_sigma, cfg.align_trans_sigma))
-        self._add(spec("scale", a, b, float(np.log(ratio)), cfg.scale_sigma))
+        sigma_s = cfg.scale_sigma
+        if self.monocular and enc.meta.get("shared_placeholder") and cfg.mono_placeholder_scale_sigma > 0:
+            sigma_s = cfg.mono_placeholder_scale_sigma  # the encoder guessed it (a turn): loops may set it
+        self._add(spec("scale", a, b, float(np.log(ratio)), sigma_s))
         if prev.points_cam.shape[1:3] == enc.points_cam.shape[1:3]:
             Xa = prev.points_cam[-1].reshape(-1, 3)
             Xb = enc.points_cam[0].reshape(-1, 3)

@@ -5,7 +5,8 @@
 For each run (a folder with trajectory.tum, groundtruth.tum, metrics.json): ATE all frames (SE(3)),
 keyframes, Sim(3) ATE and scale, RPE per frame, loops detected/accepted/rejected, tracking events, and
 the SE(3) ATE of each segment of the room walk aligned on its own (per-segment error: local drift, not
-the misplacement of whole segments) and aligned with the whole run (where the run's error sits).
+the misplacement of whole segments; ``--segment-align sim3`` for mono runs, with each segment's scale)
+and aligned with the whole run (where the run's error sits).
 Not a test: a measuring tool (docs/results.md, "A long synthetic room, session 12").
 """
 
@@ -27,7 +28,7 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(((a - b) ** 2).sum(1).mean()))
 
 
-def report(run: Path, segments: list[int]) -> str:
+def report(run: Path, segments: list[int], seg_align: str = "se3") -> str:
     m = json.loads((run / "metrics.json").read_text())
     gt, est = read_tum(run / "groundtruth.tum"), read_tum(run / "trajectory.tum")
     a = associate(gt, est)
@@ -40,15 +41,17 @@ def report(run: Path, segments: list[int]) -> str:
     rpe = compute_rpe(G, E, 1)
     lc = m.get("loop_closure", {})
     idx = gt.timestamps[a.gt_indices] * 30.0  # frame index (30 Hz synthetic clock)
-    seg_own, seg_whole = [], []
+    seg_own, seg_whole, seg_scale = [], [], []
     for lo, hi in zip(segments[:-1], segments[1:]):
         s = (idx >= lo - 0.5) & (idx < hi - 0.5)
         if s.sum() < 3:
             seg_own.append(float("nan"))
             seg_whole.append(float("nan"))
+            seg_scale.append(float("nan"))
             continue
-        al = align_positions(g[s], e[s], "se3")
+        al = align_positions(g[s], e[s], seg_align)
         es = al.apply_positions(e[s])
+        seg_scale.append(al.scale if seg_align == "sim3" else 1.0)
         seg_own.append(100 * _rmse(g[s], es))
         seg_whole.append(100 * _rmse(g[s], e_se3[s]))
     ev = m.get("events", {})
@@ -60,8 +63,9 @@ def report(run: Path, segments: list[int]) -> str:
         f"RPE {100 * float(np.sqrt(np.mean(rpe.translation_errors ** 2))):.3f} cm "
         f"{float(np.sqrt(np.mean(rpe.rotation_errors_deg ** 2))):.3f} deg, "
         f"loops {lc.get('detected', 0)}/{lc.get('accepted', 0)}/{lc.get('rejected', 0)}; "
-        f"segments {segments} own-aligned cm {['%.2f' % x for x in seg_own]} "
-        f"whole-aligned cm {['%.2f' % x for x in seg_whole]}; kf {m.get('keyframes')} events {ev_s}"
+        f"segments {segments} own-aligned ({seg_align}) cm {['%.2f' % x for x in seg_own]} "
+        + (f"scales {[f'{x:.3f}' for x in seg_scale]} " if seg_align == "sim3" else "")
+        + f"whole-aligned cm {['%.2f' % x for x in seg_whole]}; kf {m.get('keyframes')} events {ev_s}"
     )
 
 
@@ -69,10 +73,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--segments", default="0,300,560,860,1000")
+    ap.add_argument("--segment-align", default="se3", choices=["se3", "sim3"], help="sim3 for mono runs")
     a = ap.parse_args()
     segs = [int(x) for x in a.segments.split(",")]
     for r in a.runs:
-        print(report(r, segs), flush=True)
+        print(report(r, segs, a.segment_align), flush=True)
 
 
 if __name__ == "__main__":

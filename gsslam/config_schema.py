@@ -84,6 +84,7 @@ class EncoderConfig:
     mono_link_min_confidence: float = 0.0  # mono: with mono_link_weighted, pixels whose lower confidence is below this are not used
     mono_turn_rotation: bool = True  # mono: a low-parallax window keeps its rotation where PnP against the carried depth fails (PnP against a plane: a rotation-only model) instead of copying the previous pose
     mono_focal_auto: bool = False  # mono: focal self-calibration from the first frames (frontend/mono_focal.py); off: docs/results.md sessions 10, 13
+    mono_focal_auto_nominal: bool = True  # mono: ... and whenever the dataset says its intrinsics are nominal (7-Scenes: the depth camera's; docs/frontend.md)
     mono_focal_frames: int = 60  # frames read for that estimate
     mono_focal_min_dev: float = 0.05  # correct the focal only when |estimate / given - 1| exceeds this
     mono_focal_min_gain: float = 0.01  # ... and the estimate lowers the windows' BA cost by this fraction

@@ -167,6 +167,9 @@ class Playback:
             else self.misregistration.reported_intrinsics(base.intrinsics)
         )
         self.has_depth = base.has_depth
+        self.intrinsics_nominal = getattr(base, "intrinsics_nominal", False) or (
+            self.misregistration is not None and self.misregistration.report == "depth"
+        )  # the depth camera's intrinsics handed out for colour, as 7-Scenes does
         self.name = f"{getattr(base, 'name', type(base).__name__)}_{pattern}{n}" + (
             f"_s{stride}" if stride != 1 else ""
         )

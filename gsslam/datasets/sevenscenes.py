@@ -11,6 +11,9 @@ CVPR 2013.
   Kinect depth of 7-Scenes is *not* registered to the colour camera (the original release says so);
   this loader hands it out as is, at the colour resolution. ``with_depth=False`` skips it.
 - Intrinsics: fx=fy=585, cx=320, cy=240, 640x480 unless ``intrinsics=`` is given; no distortion.
+  These are the depth camera's, so the dataset says its intrinsics are nominal
+  (``intrinsics_nominal``): a mono run then calibrates the focal from the images
+  (``encoder.mono_focal_auto_nominal``).
 - Ground truth: ``frame-XXXXXX.pose.txt``, a 4x4 camera-to-world matrix ``T_world_cam``. Every pose
   file is read when the dataset is opened, so a malformed one is refused before a run starts; a
   missing file or a non-finite matrix (the convention for an untracked frame) gives ``None`` for
@@ -91,6 +94,8 @@ class SevenScenesDataset:
         self._color = [p for _, p in numbered]
         self._fps = float(fps)
         self.intrinsics = intrinsics.undistorted() if intrinsics is not None else SEVEN_SCENES_INTRINSICS
+        # the published intrinsics are the depth camera's: nominal for the colour camera (mono calibrates them)
+        self.intrinsics_nominal = intrinsics is None
         if intrinsics is not None and intrinsics.has_distortion:
             raise SevenScenesError(
                 "7-Scenes images are used as pinhole images; give intrinsics without distortion"

@@ -344,8 +344,14 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
 
 def _mono_focal(ds, cfg: Config, max_frames: int | None):  # -> (focal scale to apply, estimate | None)
     """Mono: focal self-calibration from the first frames (frontend/mono_focal.py)."""
-    if cfg.mode != "mono" or not cfg.encoder.mono_focal_auto:
+    nominal = cfg.encoder.mono_focal_auto_nominal and getattr(ds, "intrinsics_nominal", False)
+    if cfg.mode != "mono" or not (cfg.encoder.mono_focal_auto or nominal):
         return 1.0, None
+    if nominal and not cfg.encoder.mono_focal_auto:
+        log.info(
+            "mono focal: %s hands out nominal intrinsics; calibrating the focal",
+            getattr(ds, "name", "the dataset"),
+        )
     n = min(len(ds), cfg.encoder.mono_focal_frames, max_frames or len(ds))
     return mono_focal_correction([ds[i] for i in range(n)], make_flow_estimator(cfg.flow), cfg.encoder)
 

@@ -147,6 +147,8 @@ class SyntheticDataset:
                 raise SyntheticDatasetError("give focal_scale or misregister.report=depth, not both")
             if self.misregistration.report == "depth":
                 self.intrinsics = self.misregistration.depth_intrinsics(self.true_intrinsics)
+        # handed out with another camera's focal (the 7-Scenes hand-out): nominal, as the 7-Scenes loader says
+        self.intrinsics_nominal = self.intrinsics != self.true_intrinsics
         self.scene = PRESETS[params["scene"]](seed=self.seed)
         self._poses = TRAJECTORIES[self.trajectory](
             self.n_frames, float(params["arc_deg"]), self.motion_scale, self.seed

@@ -107,7 +107,7 @@ class MonoEncoder:
             sc = resize_depth(np.nan_to_num(np.asarray(shared_confidence, np.float32)), intr)
         fw, bw, valid = chained_flows(imgs, self.flow, FB_THRESHOLD_PX, self.cfg.min_texture_gradient)
         meta: dict = {"degenerate": False, "reason": "ok", "pnp_failed": [], "scale_source": "median_depth"}
-        if sd is not None and _unmeasured(sd, cfg.min_inliers):  # a low-parallax turn left a placeholder:
+        if sd is not None and unmeasured(sd, cfg.min_inliers):  # a low-parallax turn left a placeholder:
             meta["shared_placeholder"] = True  # the scale is a guess, and the graph's scale link says so
 
         # two-view initialisation against the farthest usable frame
@@ -333,7 +333,7 @@ class MonoEncoder:
                 [f.index for f in frames],
             )
             return SubmapEncoding([f.index for f in frames], T_local, points, conf, intr, meta)
-        placeholder = sd is None or _unmeasured(sd, self.cfg.min_inliers)
+        placeholder = sd is None or unmeasured(sd, self.cfg.min_inliers)
         if placeholder:
             meta["reason"] = "low_parallax_unit_depth"
             meta["placeholder_depth"] = True
@@ -398,7 +398,7 @@ def _is_constant(depth: np.ndarray) -> bool:  # [h, w]
     return len(z) > 0 and float(z.max() - z.min()) <= 1e-6 * float(abs(z).max())
 
 
-def _unmeasured(depth: np.ndarray, min_inliers: int) -> bool:  # [h, w]
+def unmeasured(depth: np.ndarray, min_inliers: int) -> bool:  # [h, w]
     """A shared depth that measures nothing: too few pixels, or a placeholder plane."""
     return int(np.isfinite(depth).sum()) < min_inliers or _is_constant(depth)
 

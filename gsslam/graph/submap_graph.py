@@ -97,6 +97,11 @@ class SubmapGraph:
             ratio = median_depth_ratio(prev.depths[-1], enc.depths[0])
         except ValueError as e:
             raise GraphError(f"submap {i}: {e}") from e
+        if self.monocular and enc.meta.get("world_depth"):
+            # the previous submap's depth of the shared frame was exhausted (a turn); the encoder was handed
+            # the chain's earlier depths rendered there in the previous submap's units instead, and frame 0
+            # speaks them: the units are the previous submap's (gsslam/slam/world_depth.py)
+            ratio = 1.0
         Z = prev.T_local_cam[-1]
         E = self._stretched(i - 1, Z) @ np.diag([ratio, ratio, ratio, 1.0])
         self.backend.add_value(b, to_gtsam(self.submap_pose(i - 1) @ E, "sim3"))

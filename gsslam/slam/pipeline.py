@@ -46,6 +46,7 @@ from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
 from gsslam.slam.plugins import call_plugins
 from gsslam.slam.poses import pose_now, relative_rgbd, tracked_pose
+from gsslam.slam.world_depth import exhausted_depth
 from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
@@ -253,14 +254,20 @@ class Pipeline:
     def _encode_window(self) -> None:
         chain = self.chains[-1]
         frames = self.window
-        shared_depth = shared_conf = None
+        shared_depth = shared_conf = carried = None
         if chain.encodings and frames[0].index in self.keyframes:
             shared_depth = self.keyframes[frames[0].index].depth
             shared_conf = keyframe_confidence(self.chains, self.keyframes[frames[0].index])
             if self.map_stage is not None and self.cfg.mapper.shared_depth_feedback:
                 shared_depth = self.map_stage.shared_depth(self.chains, frames[0].index, shared_depth)
+            if self.monocular and self.cfg.encoder.mono_world_depth:  # a turn exhausted the carried depth
+                args = (chain, self.chains, self.keyframes, frames[0].index, self.cfg.encoder.min_inliers)
+                carried = shared_depth
+                shared_depth, shared_conf = exhausted_depth(*args, shared_depth, shared_conf)
         try:
             enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
+            if self.monocular and self.cfg.encoder.mono_world_depth and shared_depth is not carried:
+                enc.meta["world_depth"] = True  # frame 0 speaks the earlier geometry in the previous units
         except GsslamError as e:
             self.events.append(Event(frames[-1].index, "encoder", str(e)))
             log.warning("submap encoding failed: %s", e)

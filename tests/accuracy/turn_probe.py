@@ -25,6 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 
 ROOM = dict(n_frames=1000, width=320, height=240, scene="furnished_room", trajectory="room_walk", seed=0)
+KINECT_DEGRADE = dict(shutter=0.5, exposure_amp=0.25, exposure_period=150)
 
 
 def main(argv=None) -> int:
@@ -33,6 +34,13 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--loops", choices=["on", "off"], default="on")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument(
+        "--twin",
+        choices=["sharp", "kinect"],
+        default="sharp",
+        help="kinect: the Kinect twin's colour (motion blur + exposure swings of synth_room1000_kinect)",
+    )
+    ap.add_argument("--focal", type=float, default=1.0, help="hand out the true focal times this")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
 
@@ -44,7 +52,10 @@ def main(argv=None) -> int:
     from gsslam.slam.pipeline import Pipeline
     from gsslam.types import Trajectory
 
-    ds = loader("synthetic")(None, **ROOM)
+    kw = dict(ROOM, focal_scale=a.focal)
+    if a.twin == "kinect":  # colour as synth_room1000_kinect's (its depth is not read in mono; exact here)
+        kw["degrade"] = KINECT_DEGRADE
+    ds = loader("synthetic")(None, **kw)
     loops = "true" if a.loops == "on" else "false"
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.overrides], mode="mono")
     pipe = Pipeline(cfg, ds.intrinsics)

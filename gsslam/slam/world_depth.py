@@ -1,0 +1,118 @@
+"""Mono: the depth of a keyframe rendered from the chain's earlier keyframe depths.
+
+In a low-parallax turn the mono encoder carries the shared frame's depth from window to window
+through the flow; the turn moves the view off it, and once too little is left the encoder hands on a
+placeholder plane at its median depth: a guess of the scale after the turn (docs/results.md, "Mono
+across turns, session 13"). But the view after a turn in a room looks at surfaces the walk saw
+before, whose depth the chain measured in its own units. :func:`rendered_depth` projects the measured
+depths (confidence > 0: triangulated or carried, not placeholder planes) of the chain's earlier
+keyframes into the shared frame at its current pose, nearest surface per cell, in the units of the
+submap that owns the frame. The pipeline hands that on instead of the exhausted carried depth
+(``encoder.mono_world_depth``), so the next window's scale is measured against the earlier geometry.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from gsslam.frontend.mono_encoder import PROPAGATED_CONFIDENCE, unmeasured
+from gsslam.geometry import backproject, sim3_scale
+from gsslam.slam.chains import Chain, ChainKeyframe, keyframe_confidence
+
+log = logging.getLogger(__name__)
+
+CELL_PX = 2  # z-buffer cell (point-map pixels): sparse sources leave no see-through holes
+STRIDE_PX = 2  # source pixels sampled per keyframe
+OCCLUSION_REL = 0.1  # a cell keeps the points within this of its nearest one
+
+
+def rendered_depth(
+    chain: Chain,
+    chains: list[Chain],
+    keyframes: dict[int, ChainKeyframe],
+    index: int,  # the keyframe to render (owned by ``chain``'s graph)
+    K: np.ndarray,  # [3, 3] point-map intrinsics (every keyframe depth of the chain is at this size)
+    shape: tuple[int, int],  # (h, w) of the point maps
+    min_confidence: float = 1e-6,
+) -> tuple[np.ndarray, int]:  # [h, w] depth in the owner submap's units (NaN: none), source keyframes
+    """Earlier measured keyframe depths of ``chain`` seen from keyframe ``index`` (module docstring)."""
+    h, w = shape
+    graph = chain.graph
+    sid_t, _ = graph.owner(index)
+    T_t = graph.keyframe_pose(index)  # rigid, chain units
+    s_t = sim3_scale(graph.submap_pose(sid_t))
+    R_t, t_t = T_t[:3, :3], T_t[:3, 3]
+    vs, us = np.mgrid[0:h:STRIDE_PX, 0:w:STRIDE_PX]
+    uv = np.stack([us.ravel(), vs.ravel()], 1).astype(np.float64)
+    pts, used = [], 0
+    cid = chains.index(chain)
+    for idx, kf in keyframes.items():
+        if idx == index or kf.chain != cid or kf.depth.shape != (h, w):
+            continue
+        conf = keyframe_confidence(chains, kf)
+        if conf is None:
+            continue
+        z = kf.depth[vs, us].ravel().astype(np.float64)
+        c = conf[vs, us].ravel()
+        ok = np.isfinite(z) & (z > 0) & (c >= min_confidence)
+        if not ok.any():
+            continue
+        T_j = graph.keyframe_pose(idx)
+        s_j = sim3_scale(graph.submap_pose(kf.submap))
+        X = s_j * backproject(K, uv[ok], z[ok])  # chain units, camera j
+        X = X @ T_j[:3, :3].T + T_j[:3, 3]
+        pts.append(((X - t_t) @ R_t) / s_t)  # camera t, its submap's units
+        used += 1
+    out = np.full((h, w), np.nan, np.float32)
+    if not pts:
+        return out, 0
+    X = np.concatenate(pts)
+    X = X[X[:, 2] > 1e-6]
+    u = K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2]
+    v = K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]
+    inb = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    if not inb.any():
+        return out, used
+    cu = (np.round(u[inb]).astype(int)) // CELL_PX
+    cv = (np.round(v[inb]).astype(int)) // CELL_PX
+    z = X[inb, 2]
+    gw, gh = (w + CELL_PX - 1) // CELL_PX, (h + CELL_PX - 1) // CELL_PX
+    cell = cv * gw + cu
+    near = np.full(gw * gh, np.inf)
+    np.minimum.at(near, cell, z)
+    keep = z <= near[cell] * (1.0 + OCCLUSION_REL)  # the nearest surface of each cell
+    total = np.zeros(gw * gh)
+    count = np.zeros(gw * gh)
+    np.add.at(total, cell[keep], z[keep])
+    np.add.at(count, cell[keep], 1.0)
+    grid = np.full(gw * gh, np.nan)
+    has = count > 0
+    grid[has] = total[has] / count[has]
+    grid = grid.reshape(gh, gw)
+    out[:] = np.kron(grid, np.ones((CELL_PX, CELL_PX)))[:h, :w]
+    return out, used
+
+
+def exhausted_depth(
+    chain: Chain,
+    chains: list[Chain],
+    keyframes: dict[int, ChainKeyframe],
+    index: int,  # the next window's shared keyframe
+    min_pixels: int,
+    depth: np.ndarray,  # [h, w] its carried depth (owner submap units)
+    confidence: np.ndarray | None,  # [h, w]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The shared depth handed to the next mono window: ``depth`` unless it measures nothing (a
+    placeholder plane or too few pixels), then the rendered depth where that has ``min_pixels``,
+    with the carried-depth confidence (:data:`PROPAGATED_CONFIDENCE`)."""
+    if not chain.encodings or not unmeasured(depth, min_pixels):
+        return depth, confidence
+    K = chain.encodings[-1].intrinsics.K
+    rendered, n = rendered_depth(chain, chains, keyframes, index, K, depth.shape)
+    has = np.isfinite(rendered)
+    log.info("keyframe %d: carried depth exhausted; %d pixels rendered from %d keyframes", index, has.sum(), n)
+    if has.sum() < min_pixels:
+        return depth, confidence
+    return rendered, np.where(has, PROPAGATED_CONFIDENCE, 0.0).astype(np.float32)

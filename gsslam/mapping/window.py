@@ -63,7 +63,8 @@ def optimize_window(state: MapState, iterations: int | None = None) -> dict:
 
 def flows_read_at_end(cfg) -> bool:
     """Whether a pass over all keyframes reads the stored flows: the final pass and ``consolidate`` with
-    ``final_lambda_flow`` > 0, or the joint refinement (``final_pose_iterations`` > 0) with ``lambda_flow`` > 0."""
+    ``final_lambda_flow`` > 0, or the joint refinement (``final_pose_iterations`` > 0) with
+    ``lambda_flow`` > 0."""
     return cfg.final_lambda_flow > 0 or (cfg.final_pose_iterations > 0 and cfg.lambda_flow > 0)
 
 

@@ -50,7 +50,7 @@ from gsslam.run.checkpoint import (
 )
 from gsslam.run.folder import RunFolder
 from gsslam.run.interrupt import DeferredInterrupt
-from gsslam.run.memory import reset_peak_rss
+from gsslam.run.memory import HeapTrimmer, reset_peak_rss
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
 from gsslam.slam.pipeline import Pipeline
@@ -247,6 +247,7 @@ def run_dataset(
         n = len(ds) if max_frames is None else min(len(ds), max_frames)
         result = RunResult(out)
         ckpt = CheckpointSchedule(out, cfg.run.checkpoint_every, identity, submap_count(pipe))
+        trimmer = HeapTrimmer(cfg.run.trim_heap, submap_count(pipe))  # free heap pages back after each submap
         t0 = time.perf_counter()
         interrupted = True
         before_batch: dict[int, np.ndarray] = {}
@@ -264,6 +265,7 @@ def run_dataset(
                         "seconds": seconds_before + time.perf_counter() - t0,
                     }
                     ckpt.after_frame(pipe, position, final=stop.signum is not None)
+                    trimmer.after(submap_count(pipe))
                     stop.deliver_pending()
             pipe.close_chain()  # the tail's submap: the poses before the batch refinement are complete
             before_batch = pipe.frame_poses()
@@ -272,6 +274,7 @@ def run_dataset(
             interrupted = False
         finally:
             wall = seconds_before + time.perf_counter() - t0
+            trimmer.now()  # what the final pass freed, before the outputs render and evaluate
             if stages is not None:
                 stages("outputs", 0, 1)
             extra = {

@@ -94,6 +94,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_registration_given": ("depth", "colour"),
     "encoder.colour_registration_depth_mean_tol": Range(0.0, 0.2),
     "encoder.colour_registration_depth_interp_tol": Range(0.0, 0.2),
+    "encoder.colour_registration_joint_weight": NONNEG,
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,

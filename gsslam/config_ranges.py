@@ -95,6 +95,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_registration_depth_mean_tol": Range(0.0, 0.2),
     "encoder.colour_registration_depth_interp_tol": Range(0.0, 0.2),
     "encoder.colour_registration_joint_weight": NONNEG,
+    "encoder.colour_registration_flow_preset": ("", "ultrafast", "fast", "medium"),
+    "encoder.colour_registration_flow_max_side": Range(0, 4096),
     "graph.flow_sigma_px": POS,
     "graph.flow_inlier_prior": PROB,
     "graph.flow_outlier_range_px": POS,

@@ -320,7 +320,7 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if cfg.mode != "rgbd" or not enc.colour_focal_auto:
         return IDENTITY, None
     end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
-    flow = make_flow_estimator(cfg.flow)
+    flow = make_flow_estimator(registration_flow_config(cfg))
     reg, est, start = IDENTITY, None, 0
     while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
         frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
@@ -341,6 +341,15 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     elif start > 0:
         log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
     return reg, est
+
+
+def registration_flow_config(cfg: Config):
+    """The flow of the registration estimate: ``cfg.flow`` with ``encoder.colour_registration_flow_*``."""
+    enc = cfg.encoder
+    return replace(
+        cfg.flow, dis_preset=enc.colour_registration_flow_preset or cfg.flow.dis_preset,
+        max_side=enc.colour_registration_flow_max_side or cfg.flow.max_side,
+    )  # fmt: skip
 
 
 def _mono_focal(ds, cfg: Config, max_frames: int | None):  # -> (focal scale to apply, estimate | None)

@@ -4,7 +4,8 @@ rows: the long synthetic room (depth camera ray-cast) and the teddy playbacks. T
 Not a test: a measuring tool (docs/results.md, "Depth re-projected by interpolation, and the registration
 baseline, session 14").
 
-    PYTHONPATH=. python3 tests/accuracy/registration_joint_estimates.py [ROW ...] [--weights 0,0.1] [--start 0]
+    PYTHONPATH=. python3 tests/accuracy/registration_joint_estimates.py [ROW ...] [--weights 0,0.1] [--start 0] \
+        [--preset medium] [--max-side 640]
 """
 
 from __future__ import annotations
@@ -41,8 +42,10 @@ def main() -> None:
     ap.add_argument("--weights", default="0,0.1")
     ap.add_argument("--start", type=int, default=0)
     ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--preset", default="ultrafast", help="flow.dis_preset for the registration's flow")
+    ap.add_argument("--max-side", type=int, default=320, help="flow.max_side for the registration's flow")
     a = ap.parse_args()
-    flow = make_flow_estimator(FlowConfig())
+    flow = make_flow_estimator(FlowConfig(dis_preset=a.preset, max_side=a.max_side))
     for row in a.rows or list(ROWS):
         ds = ROWS[row]()
         frames = [ds[i] for i in range(a.start, a.start + a.frames)]
@@ -50,7 +53,7 @@ def main() -> None:
             t = time.perf_counter()
             reg, est = registration_correction(frames, flow, 0.02, 0.01, 0.15, 2, joint_weight=w)
             alone = " ".join(f"{1000 * b:.0f}" for b in est.pair_baselines_m)
-            print(f"{row} frames {a.start}-{a.start + a.frames - 1} joint_weight {w:g}: {est.pairs} pairs, "
+            print(f"{row} ({a.preset}, {a.max_side} px) frames {a.start}-{a.start + a.frames - 1} joint_weight {w:g}: {est.pairs} pairs, "
                   f"k {est.ratio:.4f}, b {1000 * est.baseline_m:.1f} mm (fixed motions "
                   f"{1000 * est.baseline_m_fixed_motion:.1f}), applied {not reg.is_identity()}; alone: {alone} "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip

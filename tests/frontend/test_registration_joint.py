@@ -10,9 +10,13 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
+from gsslam.config import FlowConfig
 from gsslam.datasets.synthetic import SyntheticDataset
+from gsslam.frontend.colour_focal import flow_pairs, mean_cost
 from gsslam.frontend.depth_registration import DepthRegistration, pair_baselines
+from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.registration_joint import depth_information, joint_baseline, profile_min
 from helpers.registration_pair import true_pair
 
@@ -55,3 +59,34 @@ def test_profile_min_fits_a_parabola_over_a_bumpy_profile():
     bumps = np.where(np.arange(len(xs)) % 2 == 0, 0.0, 3e-6)  # the grid-scale bumps of nearest-pixel reads
     cs = (xs - 0.0263) ** 2 + bumps
     assert abs(profile_min(xs, cs) - 0.0263) < 3e-4
+
+
+@pytest.mark.slow  # ~1 min CPU: 12 ray-cast Kinect frames, flow + ICP pairs with two DIS presets
+def test_the_medium_flow_observes_the_baseline_that_the_ultrafast_flow_biases():
+    """The room's first pairs (frames 30-39) with the true depth-camera motion: the flow alone sets the
+    baseline. DIS ultrafast puts it ~9 mm long (its flow is biased by ~0.01 px, the size of the baseline's
+    effect); DIS medium (``encoder.colour_registration_flow_preset``) near the truth (session 14)."""
+    ds = SyntheticDataset(**ROOM, misregister=RAYCAST, sensor="kinect_v1")
+    reg = DepthRegistration(KINECT_RATIO, 0.0, "depth")
+    colour, depth = reg.colour_intrinsics(ds.intrinsics), reg.depth_intrinsics(ds.intrinsics)
+    T_cd = np.eye(4)
+    T_cd[0, 3] = BASELINE_M  # the depth camera's centre in the colour frame
+    ab = [(a, a + 2) for a in range(30, 38)]
+    bs = np.arange(0.0, 0.0601, 0.001)
+    found = {}
+    for preset in ("ultrafast", "medium"):
+        flow = make_flow_estimator(FlowConfig(dis_preset=preset))
+        pairs, Ts = [], []
+        for a, b in ab:
+            fa, fb = ds[a], ds[b]
+            got = flow_pairs([fa, fb], flow, gap=1, max_pairs=1)
+            if got:
+                pairs.append(got[0])
+                T_cb_ca = np.linalg.inv(fb.T_world_cam_gt) @ fa.T_world_cam_gt
+                Ts.append(np.linalg.inv(T_cd) @ T_cb_ca @ T_cd)  # the true depth-camera motion
+        assert len(pairs) >= 4
+        cost = [mean_cost(pairs, Ts, colour, (depth.fx, depth.fy), float(b))[0] for b in bs]
+        found[preset] = profile_min(bs, np.array(cost))
+    print(found)
+    assert abs(found["medium"] - BASELINE_M) < 0.003, found
+    assert abs(found["ultrafast"] - BASELINE_M) > abs(found["medium"] - BASELINE_M) + 0.004, found

@@ -131,18 +131,16 @@ def flow_pairs(
     return pairs
 
 
-def reprojection_cost(
+def depth_camera_points(
     pair: FlowPair,
-    T_b_a: np.ndarray,  # [4, 4] depth-camera motion
     colour: CameraIntrinsics,  # of the colour image
     f_depth: tuple[float, float],  # (fx, fy) of the depth camera (same principal point)
     baseline_m: float = 0.0,  # the depth camera's centre in the colour camera frame, along x
-) -> tuple[float, int]:  # -> (sum of truncated errors in px, count)
-    """Move each flow pixel by ``T_b_a`` through its depth; compare with the flow target (module doc).
+) -> tuple[np.ndarray, np.ndarray]:  # X [M, 3] depth camera frame (metres), ok [M] bool (depth found)
+    """The scene point behind each flow pixel ``pair.uv_a``, in the depth camera's frame.
 
     With a baseline the depth pixel of a colour pixel depends on its depth: found by two fixed-point
-    steps from the zero-baseline pixel.
-    """
+    steps from the zero-baseline pixel."""
     c = np.array([colour.cx, colour.cy])
     fc = np.array([colour.fx, colour.fy])
     fd = np.asarray(f_depth, dtype=np.float64)
@@ -155,13 +153,25 @@ def reprojection_cost(
         zz = np.full(len(pd), np.nan)
         zz[inside] = pair.depth_a[pd[inside, 1], pd[inside, 0]]
         z = np.where(np.isfinite(zz) & (zz > 0), zz, z)
-    z = zz
-    ok = np.isfinite(z) & (z > 0)
+    ok = np.isfinite(zz) & (zz > 0)
+    X = np.concatenate([xn * zz[:, None], zz[:, None]], 1) - np.array([baseline_m, 0.0, 0.0])
+    return X, ok
+
+
+def reprojection_cost(
+    pair: FlowPair,
+    T_b_a: np.ndarray,  # [4, 4] depth-camera motion
+    colour: CameraIntrinsics,  # of the colour image
+    f_depth: tuple[float, float],  # (fx, fy) of the depth camera (same principal point)
+    baseline_m: float = 0.0,  # the depth camera's centre in the colour camera frame, along x
+) -> tuple[float, int]:  # -> (sum of truncated errors in px, count)
+    """Move each flow pixel by ``T_b_a`` through its depth; compare with the flow target (module doc)."""
+    X, ok = depth_camera_points(pair, colour, f_depth, baseline_m)
     b = np.array([baseline_m, 0.0, 0.0])
-    X = np.concatenate([xn[ok] * z[ok, None], z[ok, None]], 1) - b  # depth camera frame
-    Xb = X @ T_b_a[:3, :3].T + T_b_a[:3, 3] + b  # colour camera frame b
+    Xb = X[ok] @ T_b_a[:3, :3].T + T_b_a[:3, 3] + b  # colour camera frame b
     front = Xb[:, 2] > 1e-3
-    uv = c + fc * Xb[front, :2] / Xb[front, 2:3]
+    c = np.array([colour.cx, colour.cy])
+    uv = c + np.array([colour.fx, colour.fy]) * Xb[front, :2] / Xb[front, 2:3]
     err = np.linalg.norm(uv - pair.uv_b[ok][front], axis=1)
     return float(np.minimum(err, TRUNCATE_PX).sum()), int(front.sum())
 

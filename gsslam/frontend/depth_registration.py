@@ -39,6 +39,7 @@ from gsslam.frontend.colour_focal import (
     parabola_min,
 )
 from gsslam.frontend.flow import FlowEstimator
+from gsslam.frontend.registration_joint import joint_baseline
 from gsslam.types import CameraIntrinsics, Frame
 
 log = logging.getLogger(__name__)
@@ -66,6 +67,7 @@ class DepthRegistration:
     pair_baselines_m: tuple[float, ...] = ()  # the baseline fitted to each pair alone at this k (its spread)
     depth_mean_tol: float = 0.0  # reproject_depth's mean_tol (0: the nearest sample)
     depth_interp_tol: float = 0.0  # reproject_depth's interp_tol (0: the pixel a sample lands on)
+    baseline_m_fixed_motion: float = float("nan")  # the fit's baseline when the joint one replaced it
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -203,6 +205,7 @@ def registration_correction(
     min_baseline_m: float,  # |baseline| that counts as unregistered
     min_gain: float = 0.0,  # ... and only when the fit lowers the error at k = 1, b = 0 by this fraction
     fallback_gap: int | None = None,  # colour_focal.flow_pairs: narrower pairs when the wide ones are few
+    joint_weight: float = 0.0,  # > 0: the baseline from motions re-solved with the flow (registration_joint)
 ) -> tuple[DepthRegistration, DepthRegistration | None]:
     """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
 
@@ -211,7 +214,9 @@ def registration_correction(
     depth-given fit finds k = 1.00, baseline ~0: nothing changes there. Unregistered means: enough
     evidence (``ok``), ``k`` or ``b`` away from registered, and an error clearly below the registered
     one (``min_gain``: measured 2-4 % on registered teddy playbacks, 34-52 % on unregistered ones;
-    docs/results.md, "Depth not registered to colour, session 9").
+    docs/results.md, "Depth not registered to colour, session 9"). ``joint_weight`` > 0: an applied
+    registration's baseline is then re-fitted with each pair's motion re-solved with its flow, the ICP
+    motion a prior of that weight (:mod:`gsslam.frontend.registration_joint`, session 14).
     """
     if sum(f.depth is not None for f in frames) < 8:
         return IDENTITY, None
@@ -226,7 +231,9 @@ def registration_correction(
     if unregistered(est):
         est = fit_registration(pairs, intr)
     apply = unregistered(est)
-    if apply:
+    if apply and joint_weight > 0:
+        est = _joint(pairs, intr, est, joint_weight)
+    elif apply:
         est = replace(est, pair_baselines_m=pair_baselines(pairs, intr, est))
     log.info(
         "depth registration: f_depth / f_colour = %.4f, baseline %.1f mm, given intrinsics of the %s camera, "
@@ -235,6 +242,16 @@ def registration_correction(
         "applied" if apply else "not applied", " ".join(f"{1000 * b:.1f}" for b in est.pair_baselines_m),
     )  # fmt: skip
     return (est if apply else IDENTITY), est
+
+
+def _joint(pairs, intr: CameraIntrinsics, est: DepthRegistration, weight: float) -> DepthRegistration:
+    Ts = [p.T_b_a for p in pairs] if est.given == "depth" else _icp_at(pairs, intr, est.ratio, ICP_STRIDES)
+    if Ts is None:
+        return replace(est, pair_baselines_m=pair_baselines(pairs, intr, est))
+    b, alone = joint_baseline(pairs, Ts, est.colour_intrinsics(intr), est.depth_intrinsics(intr), weight)
+    log.info("depth registration: baseline %.1f mm from motions re-solved with the flow (fixed motions: %.1f mm)",
+             1000 * b, 1000 * est.baseline_m)  # fmt: skip
+    return replace(est, baseline_m=float(b), baseline_m_fixed_motion=est.baseline_m, pair_baselines_m=alone)
 
 
 def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
@@ -250,6 +267,8 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
             "cost_px_at_1": est.cost_registered, "cost_px_at_ratio": est.cost,
             "pair_baselines_m": list(est.pair_baselines_m),
         })  # fmt: skip
+        if np.isfinite(est.baseline_m_fixed_motion):
+            rec["baseline_m_fixed_motion"] = float(est.baseline_m_fixed_motion)
     else:
         rec["intrinsics_given_for"] = applied.given
     return rec

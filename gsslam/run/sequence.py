@@ -323,13 +323,14 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if cfg.mode != "rgbd" or not enc.colour_focal_auto:
         return IDENTITY, None
     end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
-    flow = make_flow_estimator(cfg.flow)
+    flow = make_flow_estimator(registration_flow_config(cfg))
     reg, est, start = IDENTITY, None, 0
     while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
         frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
         reg, est = registration_correction(
             frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
             min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
+            joint_weight=enc.colour_registration_joint_weight,
         )  # fmt: skip
         if est is None or est.ok:
             break
@@ -343,6 +344,15 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     elif start > 0:
         log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
     return reg, est
+
+
+def registration_flow_config(cfg: Config):
+    """The flow of the registration estimate: ``cfg.flow`` with ``encoder.colour_registration_flow_*``."""
+    enc = cfg.encoder
+    return replace(
+        cfg.flow, dis_preset=enc.colour_registration_flow_preset or cfg.flow.dis_preset,
+        max_side=enc.colour_registration_flow_max_side or cfg.flow.max_side,
+    )  # fmt: skip
 
 
 def _mono_focal(ds, cfg: Config, max_frames: int | None):  # -> (focal scale to apply, estimate | None)

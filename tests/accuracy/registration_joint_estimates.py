@@ -1,0 +1,63 @@
+"""The registration estimate as a run makes it (first 40 frames), with the baseline from fixed ICP motions and
+from motions re-solved with the flow (``encoder.colour_registration_joint_weight``), on the 7-Scenes-like
+rows: the long synthetic room (depth camera ray-cast) and the teddy playbacks. Truth: k 1.114, b 25 mm.
+Not a test: a measuring tool (docs/results.md, "Depth re-projected by interpolation, and the registration
+baseline, session 14").
+
+    PYTHONPATH=. python3 tests/accuracy/registration_joint_estimates.py [ROW ...] [--weights 0,0.1] [--start 0] \
+        [--preset medium] [--max-side 640]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from gsslam.config import FlowConfig
+from gsslam.datasets import open_dataset
+from gsslam.datasets.synthetic import SyntheticDataset
+from gsslam.frontend.depth_registration import registration_correction
+from gsslam.frontend.flow import make_flow_estimator
+
+TEDDY = "/work/shared/data/rgbd_dataset_freiburg3_teddy"
+SEVEN = {"baseline_m": 0.025, "focal_scale": 1.114, "report": "depth"}
+FBF = dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)
+BLUR = {"shutter": 0.5, "exposure_amp": 0.25, "exposure_period": 150}
+ROOM = dict(n_frames=1000, width=320, height=240, scene="furnished_room", trajectory="room_walk", seed=0,
+            sensor="kinect_v1")  # fmt: skip
+ROWS = {
+    "room_rc": lambda: SyntheticDataset(**ROOM, misregister={**SEVEN, "raycast": True}, degrade=BLUR),
+    "room_splat": lambda: SyntheticDataset(**ROOM, misregister=SEVEN, degrade=BLUR),
+    "fbf_7scenes": lambda: open_dataset("playback", TEDDY, **FBF, misregister=SEVEN),
+    "s2_blur_7scenes": lambda: open_dataset(
+        "playback", TEDDY, base="tum", pattern="fbfbf", stride=2, degrade=BLUR, misregister=SEVEN
+    ),
+    "fbf_misreg": lambda: open_dataset("playback", TEDDY, **FBF, misregister={**SEVEN, "report": "colour"}),
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("rows", nargs="*")
+    ap.add_argument("--weights", default="0,0.1")
+    ap.add_argument("--start", type=int, default=0)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--preset", default="ultrafast", help="flow.dis_preset for the registration's flow")
+    ap.add_argument("--max-side", type=int, default=320, help="flow.max_side for the registration's flow")
+    a = ap.parse_args()
+    flow = make_flow_estimator(FlowConfig(dis_preset=a.preset, max_side=a.max_side))
+    for row in a.rows or list(ROWS):
+        ds = ROWS[row]()
+        frames = [ds[i] for i in range(a.start, a.start + a.frames)]
+        for w in (float(x) for x in a.weights.split(",")):
+            t = time.perf_counter()
+            reg, est = registration_correction(frames, flow, 0.02, 0.01, 0.15, 2, joint_weight=w)
+            alone = " ".join(f"{1000 * b:.0f}" for b in est.pair_baselines_m)
+            print(f"{row} ({a.preset}, {a.max_side} px) frames {a.start}-{a.start + a.frames - 1} joint_weight {w:g}: {est.pairs} pairs, "
+                  f"k {est.ratio:.4f}, b {1000 * est.baseline_m:.1f} mm (fixed motions "
+                  f"{1000 * est.baseline_m_fixed_motion:.1f}), applied {not reg.is_identity()}; alone: {alone} "
+                  f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -22,9 +22,10 @@ direction (mostly the optical axis for a pan).
   image depend on ``b`` a little: solved again at the new ``b`` (``rounds``).
 - The pairs must agree with the model: the median over pairs of ``w_i (b_i - b)^2`` (each pair's own
   baseline's squared deviation in its own standard deviations) at most ``MAX_MEDIAN_CHI2``, else
-  ``consistent`` is False and the caller keeps its own estimate. Measured (docs/results.md, session 15): 0.9-2.5
-  on the ray-cast Kinect room's windows; hundreds on the TUM teddy playbacks, whose colour and depth motions
-  disagree by millimetres beyond any baseline (real data: the two streams are not exposed together).
+  ``consistent`` is False and the caller keeps its own estimate. Measured (docs/results.md, session 15): 2.1-2.5
+  on the synthetic Kinect room's first window (ray-cast / splat); 74-115 on the TUM teddy playbacks, whose
+  colour and depth motions disagree by millimetres beyond any baseline (real data; the cause is not known:
+  the colour camera's rolling shutter, the two streams' exposures or the real depth's own distortion).
 
 The fixed-motion fit of :mod:`gsslam.frontend.depth_registration` instead holds ICP's whole motion and fits
 ``b`` to the flow's residual: a 1 mm ICP error moves it by ~30 mm (docs/results.md, sessions 13-15).

@@ -209,7 +209,7 @@ def registration_correction(
     min_gain: float = 0.0,  # ... and only when the fit lowers the error at k = 1, b = 0 by this fraction
     fallback_gap: int | None = None,  # colour_focal.flow_pairs: narrower pairs when the wide ones are few
     joint_weight: float = 0.0,  # > 0: the baseline from motions re-solved with the flow (registration_joint)
-    handeye: bool = False,  # the baseline from the colour and depth motions where the pairs agree (registration_handeye)
+    handeye: bool = False,  # the baseline from the colour vs depth motions where pairs agree (registration_handeye)
 ) -> tuple[DepthRegistration, DepthRegistration | None]:
     """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
 
@@ -269,8 +269,8 @@ def _handeye(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegi
         return est
     he = handeye_baseline(pairs, Ts, est.colour_intrinsics(intr), est.depth_intrinsics(intr), est.baseline_m)
     log.info(
-        "depth registration: hand-eye baseline %.1f mm (sd %.1f; pairs' median chi2 %.1f: %s; the fit's %.1f mm); "
-        "each pair's (mm): %s", 1000 * he.baseline_m, 1000 * he.std_m, he.median_chi2,
+        "depth registration: hand-eye baseline %.1f mm (sd %.1f; pairs' median chi2 %.1f: %s; "
+        "the fit's %.1f mm); each pair's (mm): %s", 1000 * he.baseline_m, 1000 * he.std_m, he.median_chi2,
         "used" if he.consistent else "not used", 1000 * est.baseline_m,
         " ".join(f"{1000 * b:.1f}" for b in he.pair_baselines_m),
     )  # fmt: skip

@@ -12,20 +12,21 @@ direction (mostly the optical axis for a pan).
 - The colour camera's motion from the flow alone (each flow pixel's point from the depth image, moved, seen
   from the colour camera; iteratively reweighted Gauss-Newton on the truncated reprojection error) and its 6x6
   covariance. Thousands of flow vectors fix it to ~0.1 mm and 0.005 deg on the Kinect room.
-- The depth camera's motion from point-to-plane ICP of the depth images with the target's normals from depth
-  smoothed by a Gaussian (``SMOOTH_PX``), and its 6x6 covariance. Smoothed normals do not condition a direction
-  the geometry leaves free: on the room's bare walls ICP slides 6-100 mm along the wall, and the covariance
-  says so (a few mm there, ~0.2 mm along the depth axis).
+- The depth camera's motion from point-to-plane ICP of the depth images with the target's normals from
+  depth smoothed by a Gaussian (``SMOOTH_PX``), and its 6x6 covariance. Smoothed normals do not condition a
+  direction the geometry leaves free: on the room's bare walls ICP slides 6-100 mm along the wall, and the
+  covariance says so (a few mm there, ~0.2 mm along the depth axis).
 - ``b``: the weighted least squares of the 6-vector ``log(T_colour (Tb T_depth Tb^-1)^-1)`` (linear in ``b``)
   over the pairs, each weighted by the inverse of the two motions' summed covariance, so that a slide along
   a wall, and its correlation with the depth axis, count as what they are. The points read from the depth
   image depend on ``b`` a little: solved again at the new ``b`` (``rounds``).
 - The pairs must agree with the model: the median over pairs of ``w_i (b_i - b)^2`` (each pair's own
   baseline's squared deviation in its own standard deviations) at most ``MAX_MEDIAN_CHI2``, else
-  ``consistent`` is False and the caller keeps its own estimate. Measured (docs/results.md, session 15): 2.1-2.5
-  on the synthetic Kinect room's first window (ray-cast / splat); 74-115 on the TUM teddy playbacks, whose
-  colour and depth motions disagree by millimetres beyond any baseline (real data; the cause is not known:
-  the colour camera's rolling shutter, the two streams' exposures or the real depth's own distortion).
+  ``consistent`` is False and the caller keeps its own estimate. Measured (docs/results.md, session 15):
+  2.1-2.5 on the synthetic Kinect room's first window (ray-cast / splat); 74-115 on the TUM teddy
+  playbacks, whose colour and depth motions disagree by millimetres beyond any baseline (real data; the
+  cause is not known: the colour camera's rolling shutter, the two streams' exposures or the real depth's
+  own distortion).
 
 The fixed-motion fit of :mod:`gsslam.frontend.depth_registration` instead holds ICP's whole motion and fits
 ``b`` to the flow's residual: a 1 mm ICP error moves it by ~30 mm (docs/results.md, sessions 13-15).
@@ -109,7 +110,7 @@ def depth_motion(
     max_dist: float = 0.05,
     huber: float = 2.0,
 ) -> tuple[np.ndarray, np.ndarray] | None:  # T_b_a [4, 4] (depth camera), its covariance [6, 6] (left)
-    """Point-to-plane ICP with the target's normals from smoothed depth (module doc); None: too few matches."""
+    """Point-to-plane ICP, the target's normals from smoothed depth (module doc); None: too few matches."""
     stride = max(1, round(depth_a.shape[1] / ICP_POINTS_SIDE))
     Ps, _ = strided_points(np.asarray(depth_a, np.float64), intr, stride)
     Pt, Kt = strided_points(smoothed_depth(depth_b, SMOOTH_PX), intr, stride)

@@ -56,7 +56,8 @@ def main() -> None:
             alone = " ".join(f"{1000 * b:.0f}" for b in est.pair_baselines_m)
             print(f"{row} ({a.preset}, {a.max_side} px) frames {a.start}-{a.start + a.frames - 1} joint_weight {w:g}: {est.pairs} pairs, "
                   f"k {est.ratio:.4f}, b {1000 * est.baseline_m:.1f} mm (fixed motions "
-                  f"{1000 * est.baseline_m_fixed_motion:.1f}; hand-eye {1000 * est.baseline_m_handeye:.1f}, median chi2 "
+                  f"{1000 * est.baseline_m_fixed_motion:.1f}; hand-eye {1000 * est.baseline_m_handeye:.1f}, "
+                  f"median chi2 "
                   f"{est.handeye_median_chi2:.1f}), applied {not reg.is_identity()}; alone: {alone} "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
 

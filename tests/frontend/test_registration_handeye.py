@@ -1,12 +1,13 @@
 """The baseline from the colour camera's motion (flow) against the depth camera's (ICP): hand-eye
 (frontend/registration_handeye.py, session 15).
 
-Ray-cast Kinect v1 views of the long synthetic room (depth noise, quantization, holes), the depth camera 25 mm beside colour at 1.114x its focal, the true
-flow; each pair's ICP motion slid 7 mm along the direction its depth geometry observes least (what ICP does on
-the room's bare walls, docs/results.md, sessions 13-15). Held fixed, the slid motions put the baseline
-centimetres off; the hand-eye fit re-solves the depth motion with smoothed normals, weighs what the depth
-geometry leaves free by its covariance and finds the truth. Colour motions that disagree with the depth
-motions beyond any baseline (what the TUM teddy playbacks show) make the pairs inconsistent: not used."""
+Ray-cast Kinect v1 views of the long synthetic room (depth noise, quantization, holes), the depth camera
+25 mm beside colour at 1.114x its focal, the true flow; each pair's ICP motion slid 7 mm along the direction
+its depth geometry observes least (what ICP does on the room's bare walls, docs/results.md, sessions 13-15).
+Held fixed, the slid motions put the baseline centimetres off; the hand-eye fit re-solves the depth motion
+with smoothed normals, weighs what the depth geometry leaves free by its covariance and finds the truth.
+Colour motions that disagree with the depth motions beyond any baseline (what the TUM teddy playbacks show)
+make the pairs inconsistent: not used."""
 
 from __future__ import annotations
 
@@ -44,8 +45,10 @@ def _pairs(colour_offset_m: float = 0.0):
             T_cb_ca[2, 3] += colour_offset_m * (-1) ** j
             us, vs = p.uv_a[:, 0].astype(int), p.uv_a[:, 1].astype(int)
             z = registered[a].depth[vs, us].astype(np.float64)
-            X = np.stack([(us - c.cx) / c.fx * z, (vs - c.cy) / c.fy * z, z], 1) @ T_cb_ca[:3, :3].T + T_cb_ca[:3, 3]
-            p = replace(p, uv_b=np.stack([c.cx + c.fx * X[:, 0] / X[:, 2], c.cy + c.fy * X[:, 1] / X[:, 2]], 1))
+            X = np.stack([(us - c.cx) / c.fx * z, (vs - c.cy) / c.fy * z, z], 1)
+            X = X @ T_cb_ca[:3, :3].T + T_cb_ca[:3, 3]
+            uv_b = np.stack([c.cx + c.fx * X[:, 0] / X[:, 2], c.cy + c.fy * X[:, 1] / X[:, 2]], 1)
+            p = replace(p, uv_b=uv_b)
         H = depth_information(p.raw_a, p.raw_b, depth, p.T_b_a)
         _, V = np.linalg.eigh(H[:3, :3])  # translation: the least observed direction first
         T = p.T_b_a.copy()

@@ -72,6 +72,7 @@ class EncoderConfig:
     colour_registration_icp: bool = True  # a run that registers its depth takes its poses from depth too (forces rgbd_icp)
     colour_registration_depth_interp_tol: float = 0.03  # re-projected depth: read bilinearly at the exact pixel where the 4 agree within this relative depth (0: nearest pixel; on since session 14)
     colour_registration_joint_weight: float = 0.0  # > 0: the estimate's baseline from each pair's motion re-solved with its flow, ICP's depth information a prior of this weight (registration_joint.py; 0: ICP motions held)
+    colour_registration_handeye: bool = True  # the estimate's baseline from each pair's colour motion (flow) against its depth motion (ICP, smoothed normals), pooled by their covariances, where the pairs agree (registration_handeye.py; else the fit's; on since session 15)
     colour_registration_flow_preset: str = "medium"  # DIS preset of the registration estimate's flow ("": flow.dis_preset; medium: ~10x less flow bias than ultrafast, session 14)
     colour_registration_flow_max_side: int = 0  # ... computed at this max image side (0: flow.max_side)
     colour_registration_given: str = "depth"  # ... and the dataset's intrinsics belong to this camera (depth | colour)

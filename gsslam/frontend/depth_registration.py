@@ -39,6 +39,7 @@ from gsslam.frontend.colour_focal import (
     parabola_min,
 )
 from gsslam.frontend.flow import FlowEstimator
+from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
 from gsslam.types import CameraIntrinsics, Frame
 
@@ -67,7 +68,9 @@ class DepthRegistration:
     pair_baselines_m: tuple[float, ...] = ()  # the baseline fitted to each pair alone at this k (its spread)
     depth_mean_tol: float = 0.0  # reproject_depth's mean_tol (0: the nearest sample)
     depth_interp_tol: float = 0.0  # reproject_depth's interp_tol (0: the pixel a sample lands on)
-    baseline_m_fixed_motion: float = float("nan")  # the fit's baseline when the joint one replaced it
+    baseline_m_fixed_motion: float = float("nan")  # the fit's baseline when the joint or hand-eye one replaced it
+    baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
+    handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -206,6 +209,7 @@ def registration_correction(
     min_gain: float = 0.0,  # ... and only when the fit lowers the error at k = 1, b = 0 by this fraction
     fallback_gap: int | None = None,  # colour_focal.flow_pairs: narrower pairs when the wide ones are few
     joint_weight: float = 0.0,  # > 0: the baseline from motions re-solved with the flow (registration_joint)
+    handeye: bool = False,  # the baseline from the colour vs depth motions where pairs agree (registration_handeye)
 ) -> tuple[DepthRegistration, DepthRegistration | None]:
     """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
 
@@ -216,7 +220,10 @@ def registration_correction(
     one (``min_gain``: measured 2-4 % on registered teddy playbacks, 34-52 % on unregistered ones;
     docs/results.md, "Depth not registered to colour, session 9"). ``joint_weight`` > 0: an applied
     registration's baseline is then re-fitted with each pair's motion re-solved with its flow, the ICP
-    motion a prior of that weight (:mod:`gsslam.frontend.registration_joint`, session 14).
+    motion a prior of that weight (:mod:`gsslam.frontend.registration_joint`, session 14). ``handeye``: an
+    applied registration's baseline is then taken from each pair's colour motion (flow) against its depth
+    motion (ICP), pooled by their covariances, where the pairs agree with that model
+    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays.
     """
     if sum(f.depth is not None for f in frames) < 8:
         return IDENTITY, None
@@ -235,6 +242,8 @@ def registration_correction(
         est = _joint(pairs, intr, est, joint_weight)
     elif apply:
         est = replace(est, pair_baselines_m=pair_baselines(pairs, intr, est))
+    if apply and handeye:
+        est = _handeye(pairs, intr, est)
     log.info(
         "depth registration: f_depth / f_colour = %.4f, baseline %.1f mm, given intrinsics of the %s camera, "
         "from %d pairs (%d px; %.2f -> %.2f px): %s; baseline of each pair alone (mm): %s",
@@ -254,6 +263,23 @@ def _joint(pairs, intr: CameraIntrinsics, est: DepthRegistration, weight: float)
     return replace(est, baseline_m=float(b), baseline_m_fixed_motion=est.baseline_m, pair_baselines_m=alone)
 
 
+def _handeye(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegistration:
+    Ts = [p.T_b_a for p in pairs] if est.given == "depth" else _icp_at(pairs, intr, est.ratio, ICP_STRIDES)
+    if Ts is None:
+        return est
+    he = handeye_baseline(pairs, Ts, est.colour_intrinsics(intr), est.depth_intrinsics(intr), est.baseline_m)
+    log.info(
+        "depth registration: hand-eye baseline %.1f mm (sd %.1f; pairs' median chi2 %.1f: %s; "
+        "the fit's %.1f mm); each pair's (mm): %s", 1000 * he.baseline_m, 1000 * he.std_m, he.median_chi2,
+        "used" if he.consistent else "not used", 1000 * est.baseline_m,
+        " ".join(f"{1000 * b:.1f}" for b in he.pair_baselines_m),
+    )  # fmt: skip
+    est = replace(est, baseline_m_handeye=he.baseline_m, handeye_median_chi2=he.median_chi2)
+    if not he.consistent:
+        return est
+    return replace(est, baseline_m=he.baseline_m, baseline_m_fixed_motion=est.baseline_m)
+
+
 def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
     """The registration a run used and the estimate behind it, for ``metrics.json``."""
     rec: dict = {
@@ -269,6 +295,9 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         })  # fmt: skip
         if np.isfinite(est.baseline_m_fixed_motion):
             rec["baseline_m_fixed_motion"] = float(est.baseline_m_fixed_motion)
+        if np.isfinite(est.baseline_m_handeye):
+            rec["baseline_m_handeye"] = float(est.baseline_m_handeye)
+            rec["handeye_median_chi2"] = float(est.handeye_median_chi2)
     else:
         rec["intrinsics_given_for"] = applied.given
     return rec

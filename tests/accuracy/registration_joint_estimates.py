@@ -5,7 +5,7 @@ Not a test: a measuring tool (docs/results.md, "Depth re-projected by interpolat
 baseline, session 14").
 
     PYTHONPATH=. python3 tests/accuracy/registration_joint_estimates.py [ROW ...] [--weights 0,0.1] [--start 0] \
-        [--preset medium] [--max-side 640]
+        [--preset medium] [--max-side 640] [--handeye]
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--preset", default="ultrafast", help="flow.dis_preset for the registration's flow")
     ap.add_argument("--max-side", type=int, default=320, help="flow.max_side for the registration's flow")
+    ap.add_argument("--handeye", action="store_true", help="encoder.colour_registration_handeye (session 15)")
     a = ap.parse_args()
     flow = make_flow_estimator(FlowConfig(dis_preset=a.preset, max_side=a.max_side))
     for row in a.rows or list(ROWS):
@@ -51,11 +52,13 @@ def main() -> None:
         frames = [ds[i] for i in range(a.start, a.start + a.frames)]
         for w in (float(x) for x in a.weights.split(",")):
             t = time.perf_counter()
-            reg, est = registration_correction(frames, flow, 0.02, 0.01, 0.15, 2, joint_weight=w)
+            reg, est = registration_correction(frames, flow, 0.02, 0.01, 0.15, 2, joint_weight=w, handeye=a.handeye)
             alone = " ".join(f"{1000 * b:.0f}" for b in est.pair_baselines_m)
             print(f"{row} ({a.preset}, {a.max_side} px) frames {a.start}-{a.start + a.frames - 1} joint_weight {w:g}: {est.pairs} pairs, "
                   f"k {est.ratio:.4f}, b {1000 * est.baseline_m:.1f} mm (fixed motions "
-                  f"{1000 * est.baseline_m_fixed_motion:.1f}), applied {not reg.is_identity()}; alone: {alone} "
+                  f"{1000 * est.baseline_m_fixed_motion:.1f}; hand-eye {1000 * est.baseline_m_handeye:.1f}, "
+                  f"median chi2 "
+                  f"{est.handeye_median_chi2:.1f}), applied {not reg.is_identity()}; alone: {alone} "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
 
 

@@ -108,10 +108,13 @@ def refine_loop_icp(
     lc: LoopConstraint, enc_i: SubmapEncoding, enc_m: SubmapEncoding, cfg: LoopConfig
 ) -> IcpLoop | None:
     """Dense ICP of the loop's closest keyframe pair (``loop.icp_refine_pairs`` > 1: of that many
-    pairs, fused by :func:`fuse_pairs`), started at ``lc.T_i_m``; None when refused."""
+    pairs, fused by :func:`fuse_pairs`), started at ``lc.T_i_m``, its information x ``loop.icp_loop_weight``;
+    None when refused."""
     icp = icp_relative_pose(lc.T_i_m, enc_i, enc_m, cfg, pairs=cfg.icp_refine_pairs)
     if icp is None:
         log.debug("loop %d-%d: ICP refused", lc.i, lc.m)
+    elif cfg.icp_loop_weight != 1.0:  # loops only: the neighbour factors keep icp_effective_points' weight
+        icp = replace(icp, information=icp.information * cfg.icp_loop_weight)
     return icp
 
 

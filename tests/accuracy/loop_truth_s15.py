@@ -1,6 +1,6 @@
 """Loop diagnostics against ground truth on the ray-cast Kinect room prefix (session 15, docs/results.md "RGB-D loops that correct, session 15"): per loop, the RANSAC (and ICP) relative pose, the estimate before / after the loop, before / after the final batch vs the truth; whitened chi2 per factor class at the estimate and at the truth.
 
-    PYTHONPATH=. python3 tests/accuracy/loop_truth_s15.py OUT N_FRAMES [key=value ...]   (PAIRS=1: also every keyframe pair's ICP)
+    PYTHONPATH=. python3 tests/accuracy/loop_truth_s15.py OUT N_FRAMES [key=value ...]   (PAIRS=1: also every keyframe pair's ICP; SEQ=loop800: synth_loop800)
 
 Not a test: a measuring tool (monkeypatches the pipeline to record; scratch quality)."""
 import json, sys, pickle, logging
@@ -16,9 +16,13 @@ from gsslam.graph.keys import submap_key
 
 out = Path(sys.argv[1]); nfr = int(sys.argv[2]); overrides = sys.argv[3:]
 out.mkdir(parents=True, exist_ok=True)
-kw = dict(n_frames=1000, width=320, height=240, scene="furnished_room", trajectory="room_walk", seed=0,
-          sensor="kinect_v1", misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth", raycast=True),
-          degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))
+import os
+if os.environ.get("SEQ") == "loop800":  # synth_loop800 (RGB-D row of the tracking suite)
+    kw = dict(n_frames=800, width=320, height=240, trajectory="loop", seed=5)
+else:  # the ray-cast Kinect room (tests/accuracy/room1000_raycast_s14.yaml)
+  kw = dict(n_frames=1000, width=320, height=240, scene="furnished_room", trajectory="room_walk", seed=0,
+            sensor="kinect_v1", misregister=dict(baseline_m=0.025, focal_scale=1.114, report="depth", raycast=True),
+            degrade=dict(shutter=0.5, exposure_amp=0.25, exposure_period=150))
 (out / "synthetic.yaml").write_text(yaml.safe_dump(kw))
 cfg = load_config(None, ["mapper.enabled=false"] + overrides, mode="rgbd")
 CAP = {}

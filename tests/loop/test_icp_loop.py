@@ -271,3 +271,17 @@ def test_icp_pairs_one_per_keyframe_fused_exactly():
     exact = refine_loop_icp(_loop(T_true), enc_i, enc_m, cfg4)
     assert _err(exact.T_i_m, T_true)[0] < 1e-3
     assert exact.inliers > 3 * refine_loop_icp(_loop(T_true), enc_i, enc_m, LoopConfig()).inliers
+
+
+def test_icp_loop_weight_scales_the_loops_information_only(scene):
+    ds, enc_i, enc_m, T_true = scene
+    base = refine_loop_icp(_loop(T_true), enc_i, enc_m, LoopConfig())
+    heavy = refine_loop_icp(_loop(T_true), enc_i, enc_m, dataclasses.replace(LoopConfig(), icp_loop_weight=10.0))
+    np.testing.assert_allclose(heavy.information, 10 * base.information, rtol=1e-9)
+    np.testing.assert_allclose(heavy.T_i_m, base.T_i_m)
+    # the neighbour factors keep loop.icp_effective_points' weight
+    encs = [enc_m, enc_i]
+    poses = {0: np.eye(4), 1: invert_T(T_true)}
+    (_, a), = neighbour_icp(1, encs, poses, LoopConfig())
+    (_, b), = neighbour_icp(1, encs, poses, dataclasses.replace(LoopConfig(), icp_loop_weight=10.0))
+    np.testing.assert_allclose(a.information, b.information)

@@ -228,6 +228,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "loop.mono_inlier_gate": ("median", "range", "ray"),
     "loop.ray_threshold_deg": Range(0.0, 90.0, lo_open=True),
     "loop.ray_depth_rel": POS,
+    "loop.icp_refine_pairs": _ge(1),
+    "loop.icp_loop_weight": POS,
     "loop.icp_effective_points": POS,
     "loop.icp_huber": _ge(0),
     "loop.icp_max_shift_m": POS,

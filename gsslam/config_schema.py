@@ -259,6 +259,8 @@ class LoopConfig:
     ray_threshold_deg: float = 1.0  # mono "ray" gate: angle between the two rays of a match, in submap i's view
     ray_depth_rel: float = 0.04  # mono "ray" gate: range disagreement / range (the point maps' depth noise)
     icp_refine: bool = False  # RGB-D: refine each loop by dense ICP of its closest keyframe pair; a relative-pose factor with the ICP information replaces its point factor (loop/icp_loop.py)
+    icp_refine_pairs: int = 1  # RGB-D ICP loops: keyframe pairs aligned per loop (one per keyframe of the newer submap, closest first), fused into one relative pose (loop/icp_loop.py::fuse_pairs); 1: the closest pair only
+    icp_loop_weight: float = 1.0  # RGB-D ICP loops (not the neighbour factors): their information x this (session 15: accurate loops pulled only halfway against the odometry)
     icp_effective_points: float = 100.0  # RGB-D ICP loops: the ICP Hessian of N matches is rescaled to this many independent matches
     icp_huber: float = 3.0  # RGB-D ICP loops: Huber threshold of the relative-pose factor (whitened units)
     icp_max_shift_m: float = 0.05  # RGB-D ICP loops: refused when ICP moves the loop's pose farther than this from RANSAC's

@@ -231,3 +231,57 @@ def test_loop_stage_adds_icp_neighbours_with_loops_off(revisit_rgbd):
     # mostly does; measured 6 of the 17 pairs
     assert 2 * n - 3 > m["icp_neighbour_factors"] >= n // 2
     assert kinds.count("relative_pose") == m["icp_neighbour_factors"] and m["accepted"] == 0
+
+
+def test_fuse_pairs_is_the_information_weighted_mean_of_the_pairs():
+    from gsslam.loop.icp_loop import IcpLoop, fuse_pairs
+
+    T0 = make_T(so3_exp(np.radians([10.0, -20.0, 5.0])), np.array([0.3, -0.1, 0.5]))
+    d = np.array([0.0, 0.0, 0.002, 0.004, -0.002, 0.001])  # (rotation rad, translation m), right perturbation
+    I1 = np.diag([1e5] * 3 + [1e4] * 3)
+    up = IcpLoop(T0 @ make_T(so3_exp(d[:3]), d[3:]), I1, (0, 0), 1000, 1e-3, 0.0, 0.0)
+    down = IcpLoop(T0 @ make_T(so3_exp(-d[:3]), -d[3:]), I1, (1, 0), 1000, 1e-3, 0.0, 0.0)
+    mid = fuse_pairs([up, down], T0)
+    assert _err(mid.T_i_m, T0)[0] < 1e-5 and _err(mid.T_i_m, T0)[1] < 1e-3  # equal weights: the midpoint
+    np.testing.assert_allclose(mid.information, I1)  # the mean information, not the sum (the pairs share poses)
+    # three times the information on "down" pulls the mean three quarters of the way to it
+    heavy = IcpLoop(down.T_i_m, 3 * I1, (1, 0), 1000, 1e-3, 0.0, 0.0)
+    q = fuse_pairs([up, heavy], T0)
+    D = invert_T(T0) @ q.T_i_m
+    np.testing.assert_allclose(D[:3, 3], -0.5 * d[3:], atol=2e-5)
+    np.testing.assert_allclose(so3_log(D[:3, :3]), -0.5 * d[:3], atol=2e-5)
+    assert q.shift_m == pytest.approx(np.linalg.norm(D[:3, 3]))
+    assert q.inliers == 2000
+
+
+def test_icp_pairs_one_per_keyframe_fused_exactly():
+    """``loop.icp_refine_pairs``: one pair per keyframe of submap i, closest first (the first is the single
+    pair's); with exact local poses the fused pose is exact and holds every pair's matches."""
+    from gsslam.loop.icp_loop import closest_pairs
+
+    ds = SyntheticDataset(n_frames=12, width=160, height=120, trajectory="orbit", seed=0)
+    m_idx, i_idx = (0, 1, 2, 3), (4, 5, 6, 7)
+    enc_m, enc_i = _encoding(ds, m_idx), _encoding(ds, i_idx)
+    T_true = invert_T(ds[i_idx[0]].T_world_cam_gt) @ ds[m_idx[0]].T_world_cam_gt
+    same = np.zeros((4, 4), bool)
+    pairs = closest_pairs(T_true, enc_i.T_local_cam, enc_m.T_local_cam, 2.0, same, 4)
+    assert pairs[0] == closest_views(T_true, enc_i.T_local_cam, enc_m.T_local_cam, 2.0)
+    assert len(pairs) == 4 and len({v for v, _ in pairs}) == 4  # one pair per keyframe of submap i
+    cfg4 = dataclasses.replace(LoopConfig(), icp_refine_pairs=4)
+    exact = refine_loop_icp(_loop(T_true), enc_i, enc_m, cfg4)
+    assert _err(exact.T_i_m, T_true)[0] < 1e-3
+    assert exact.inliers > 3 * refine_loop_icp(_loop(T_true), enc_i, enc_m, LoopConfig()).inliers
+
+
+def test_icp_loop_weight_scales_the_loops_information_only(scene):
+    ds, enc_i, enc_m, T_true = scene
+    base = refine_loop_icp(_loop(T_true), enc_i, enc_m, LoopConfig())
+    heavy = refine_loop_icp(_loop(T_true), enc_i, enc_m, dataclasses.replace(LoopConfig(), icp_loop_weight=10.0))
+    np.testing.assert_allclose(heavy.information, 10 * base.information, rtol=1e-9)
+    np.testing.assert_allclose(heavy.T_i_m, base.T_i_m)
+    # the neighbour factors keep loop.icp_effective_points' weight
+    encs = [enc_m, enc_i]
+    poses = {0: np.eye(4), 1: invert_T(T_true)}
+    (_, a), = neighbour_icp(1, encs, poses, LoopConfig())
+    (_, b), = neighbour_icp(1, encs, poses, dataclasses.replace(LoopConfig(), icp_loop_weight=10.0))
+    np.testing.assert_allclose(a.information, b.information)

@@ -263,7 +263,8 @@ class Pipeline:
             if self.monocular and self.cfg.encoder.mono_world_depth:  # a turn exhausted the carried depth
                 args = (chain, self.chains, self.keyframes, frames[0].index, self.cfg.encoder.min_inliers)
                 carried = shared_depth
-                shared_depth, shared_conf = exhausted_depth(*args, shared_depth, shared_conf)
+                cover = self.cfg.encoder.mono_world_depth_min_cover
+                shared_depth, shared_conf = exhausted_depth(*args, shared_depth, shared_conf, cover)
         try:
             enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
             if self.monocular and self.cfg.encoder.mono_world_depth and shared_depth is not carried:

@@ -103,16 +103,32 @@ def exhausted_depth(
     min_pixels: int,
     depth: np.ndarray,  # [h, w] its carried depth (owner submap units)
     confidence: np.ndarray | None,  # [h, w]
+    min_cover: float = 0.0,  # a carried depth on less than this share of the frame is exhausted too
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The shared depth handed to the next mono window: ``depth`` unless it measures nothing (a
-    placeholder plane or too few pixels), then the rendered depth where that has ``min_pixels``,
-    with the carried-depth confidence (:data:`PROPAGATED_CONFIDENCE`)."""
-    if not chain.encodings or not unmeasured(depth, min_pixels):
+    placeholder plane or too few pixels) or covers less than ``min_cover`` of the frame, then the
+    rendered depth where that has ``min_pixels``, with the carried-depth confidence
+    (:data:`PROPAGATED_CONFIDENCE`). A carried depth that still measures a sliver of the frame keeps
+    its pixels (and confidence) and the rendered depth fills the rest: a sliver at the edge a turn
+    leaves is gone from the window's other frames, so the window's own depth could not link to it
+    (docs/results.md, "Two-view windows that break a mono chain, session 15")."""
+    if not chain.encodings:
+        return depth, confidence
+    exhausted = unmeasured(depth, min_pixels)
+    if not exhausted and np.isfinite(depth).mean() >= min_cover:
         return depth, confidence
     K = chain.encodings[-1].intrinsics.K
     rendered, n = rendered_depth(chain, chains, keyframes, index, K, depth.shape)
     has = np.isfinite(rendered)
-    log.info("keyframe %d: carried depth exhausted; %d pixels rendered from %d keyframes", index, has.sum(), n)
+    log.info(
+        "keyframe %d: carried depth exhausted; %d pixels rendered from %d keyframes", index, has.sum(), n
+    )
     if has.sum() < min_pixels:
         return depth, confidence
-    return rendered, np.where(has, PROPAGATED_CONFIDENCE, 0.0).astype(np.float32)
+    conf = np.where(has, PROPAGATED_CONFIDENCE, 0.0).astype(np.float32)
+    if not exhausted:  # the carried sliver stays, the rendered depth fills the rest
+        own = np.isfinite(depth) & (depth > 0)
+        rendered = np.where(own, depth, rendered).astype(np.float32)
+        own_conf = PROPAGATED_CONFIDENCE if confidence is None else confidence
+        conf = np.where(own, own_conf, conf).astype(np.float32)
+    return rendered, conf

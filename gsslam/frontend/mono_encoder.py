@@ -210,6 +210,8 @@ class MonoEncoder:
                 g *= g2
                 meta["scale_source"] = "shared_depth"
                 meta["dense_scale_correction"] = g2
+            else:  # the window's depth shares too few pixels with the shared depth (a sliver a turn left)
+                meta["unlinked"] = True
         if sd is not None:
             # Frame 0 speaks the shared depth, on exactly its pixels: the graph compares the two depth
             # maps of the shared frame by their medians, and on a scene with near and far parts

@@ -103,19 +103,19 @@ def exhausted_depth(
     min_pixels: int,
     depth: np.ndarray,  # [h, w] its carried depth (owner submap units)
     confidence: np.ndarray | None,  # [h, w]
-    min_cover: float = 0.0,  # a carried depth on less than this share of the frame is exhausted too
+    unlinked: bool = False,  # the window encoded with ``depth`` could not link its own depth to it
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The shared depth handed to the next mono window: ``depth`` unless it measures nothing (a
-    placeholder plane or too few pixels) or covers less than ``min_cover`` of the frame, then the
+    placeholder plane or too few pixels) or the window could not link to it (``unlinked``), then the
     rendered depth where that has ``min_pixels``, with the carried-depth confidence
-    (:data:`PROPAGATED_CONFIDENCE`). A carried depth that still measures a sliver of the frame keeps
-    its pixels (and confidence) and the rendered depth fills the rest: a sliver at the edge a turn
-    leaves is gone from the window's other frames, so the window's own depth could not link to it
-    (docs/results.md, "Two-view windows that break a mono chain, session 15")."""
+    (:data:`PROPAGATED_CONFIDENCE`). An unlinked carried depth keeps its pixels (and confidence) and
+    the rendered depth fills the rest: a sliver at the edge a turn leaves is gone from the window's
+    other frames, so the window's own depth has no pixel in common with it (docs/results.md,
+    "Two-view windows that break a mono chain, session 15")."""
     if not chain.encodings:
         return depth, confidence
     exhausted = unmeasured(depth, min_pixels)
-    if not exhausted and np.isfinite(depth).mean() >= min_cover:
+    if not exhausted and not unlinked:
         return depth, confidence
     K = chain.encodings[-1].intrinsics.K
     rendered, n = rendered_depth(chain, chains, keyframes, index, K, depth.shape)

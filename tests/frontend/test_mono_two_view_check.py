@@ -63,3 +63,15 @@ def test_a_two_view_window_whose_depth_bends_against_the_shared_depth_carries_it
     assert enc.meta["scale_source"] == "shared_depth"
     # the poses come from PnP against the (bent) shared depth: the window follows the chain's geometry
     assert 0.7 < _translation_ratio(enc, frames) < 0.9  # measured 0.80
+
+
+def test_a_window_whose_depth_misses_a_carried_sliver_says_it_is_unlinked(window):
+    """A carried depth left on the strip the motion moves out of view (``encoder.mono_world_depth_unlinked``
+    then renders the chain's earlier depths there and encodes the window again: slam/world_depth.py)."""
+    frames, right, _ = window
+    sliver = np.full_like(right, np.nan)
+    sliver[:, :6] = right[:, :6]
+    enc = _encoder().encode(frames, shared_depth=sliver)
+    assert enc.meta["reason"] == "ok" and enc.meta.get("unlinked")
+    assert enc.meta["scale_source"] == "median_depth"  # its units are its own, not the sliver's
+    assert not _encoder().encode(frames, shared_depth=right).meta.get("unlinked")

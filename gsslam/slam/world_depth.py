@@ -120,9 +120,8 @@ def exhausted_depth(
     K = chain.encodings[-1].intrinsics.K
     rendered, n = rendered_depth(chain, chains, keyframes, index, K, depth.shape)
     has = np.isfinite(rendered)
-    log.info(
-        "keyframe %d: carried depth exhausted; %d pixels rendered from %d keyframes", index, has.sum(), n
-    )
+    why = "exhausted" if exhausted else "unlinked"
+    log.info("keyframe %d: carried depth %s; %d pixels rendered from %d keyframes", index, why, has.sum(), n)
     if has.sum() < min_pixels:
         return depth, confidence
     conf = np.where(has, PROPAGATED_CONFIDENCE, 0.0).astype(np.float32)

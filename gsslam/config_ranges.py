@@ -77,6 +77,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.mono_ba_tracks": ("two_view", "all"),
     "encoder.mono_two_view_hypotheses": Range(1, 16),
     "encoder.mono_link_min_confidence": Range(0.0, 1.0),
+    "encoder.mono_link_max_spread": Range(0.0, 5.0),
     "encoder.mono_focal_frames": _ge(8),
     "encoder.mono_focal_min_dev": Range(0.0, 0.5),
     "encoder.mono_focal_min_gain": Range(0.0, 0.9),

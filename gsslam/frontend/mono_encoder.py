@@ -188,6 +188,21 @@ class MonoEncoder:
             # the dense frame-0 depth against the shared depth: one robust log-ratio (on every pixel
             # both have, or weighted by confidence) puts the whole submap in the previous one's units
             link = chain_link(sd, points[0, ..., 2], sc, conf[0], cfg)  # gsslam/frontend/mono_link.py
+            if link is not None and 0 < cfg.mono_link_max_spread < link.spread:
+                # a right two-view geometry triangulates frame 0 as the shared depth up to one factor;
+                # a wrong one bends it (docs/results.md, "Two-view windows that break a mono chain,
+                # session 15"): refused, the window carries the shared depth as a low-parallax one does
+                log.info(
+                    "mono encoder: keyframes %s: two-view depth disagrees with the shared depth "
+                    "(log-ratio spread %.3f); carrying the shared depth",
+                    [f.index for f in frames],
+                    link.spread,
+                )
+                refused = {"frame": ref, "link_spread": link.spread, "parallax_deg": tv.median_parallax_deg}
+                meta = {k: meta[k] for k in ("two_view", "shared_placeholder") if k in meta}
+                meta.update(degenerate=False, reason="ok", pnp_failed=[], scale_source="median_depth")
+                meta["two_view_refused"] = refused
+                return self._degenerate(frames, imgs, fw, bw, valid, sd, intr, meta)
             if link is not None:
                 g2, meta["link_sigma"] = float(np.exp(link.log_scale)), link.sigma
                 points *= g2
@@ -195,6 +210,8 @@ class MonoEncoder:
                 g *= g2
                 meta["scale_source"] = "shared_depth"
                 meta["dense_scale_correction"] = g2
+            else:  # the window's depth shares too few pixels with the shared depth (a sliver a turn left)
+                meta["unlinked"] = True
         if sd is not None:
             # Frame 0 speaks the shared depth, on exactly its pixels: the graph compares the two depth
             # maps of the shared frame by their medians, and on a scene with near and far parts

@@ -66,6 +66,9 @@ class Pipeline:
 
         self.cfg = cfg
         self.monocular = cfg.mode == "mono"
+        self.unlinked = (
+            cfg.encoder.mono_world_depth_unlinked
+        )  # mono: re-encode a window its sliver left unlinked
         self.intrinsics = intrinsics
         self.flow = make_flow_estimator(cfg.flow)
         self.selector = KeyframeSelector(cfg.keyframes)
@@ -266,6 +269,14 @@ class Pipeline:
                 shared_depth, shared_conf = exhausted_depth(*args, shared_depth, shared_conf)
         try:
             enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
+            if carried is not None and shared_depth is carried and enc.meta.get("unlinked") and self.unlinked:
+                # the window's depth missed the carried sliver (a turn's edge): render the rest, encode again
+                shared = exhausted_depth(*args, shared_depth, shared_conf, unlinked=True)
+                if shared[0] is not shared_depth:
+                    shared_depth, shared_conf = shared
+                    enc = self.encoder.encode(
+                        frames, shared_depth=shared_depth, shared_confidence=shared_conf
+                    )
             if self.monocular and self.cfg.encoder.mono_world_depth and shared_depth is not carried:
                 enc.meta["world_depth"] = True  # frame 0 speaks the earlier geometry in the previous units
         except GsslamError as e:

@@ -103,16 +103,31 @@ def exhausted_depth(
     min_pixels: int,
     depth: np.ndarray,  # [h, w] its carried depth (owner submap units)
     confidence: np.ndarray | None,  # [h, w]
+    unlinked: bool = False,  # the window encoded with ``depth`` could not link its own depth to it
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The shared depth handed to the next mono window: ``depth`` unless it measures nothing (a
-    placeholder plane or too few pixels), then the rendered depth where that has ``min_pixels``,
-    with the carried-depth confidence (:data:`PROPAGATED_CONFIDENCE`)."""
-    if not chain.encodings or not unmeasured(depth, min_pixels):
+    placeholder plane or too few pixels) or the window could not link to it (``unlinked``), then the
+    rendered depth where that has ``min_pixels``, with the carried-depth confidence
+    (:data:`PROPAGATED_CONFIDENCE`). An unlinked carried depth keeps its pixels (and confidence) and
+    the rendered depth fills the rest: a sliver at the edge a turn leaves is gone from the window's
+    other frames, so the window's own depth has no pixel in common with it (docs/results.md,
+    "Two-view windows that break a mono chain, session 15")."""
+    if not chain.encodings:
+        return depth, confidence
+    exhausted = unmeasured(depth, min_pixels)
+    if not exhausted and not unlinked:
         return depth, confidence
     K = chain.encodings[-1].intrinsics.K
     rendered, n = rendered_depth(chain, chains, keyframes, index, K, depth.shape)
     has = np.isfinite(rendered)
-    log.info("keyframe %d: carried depth exhausted; %d pixels rendered from %d keyframes", index, has.sum(), n)
+    why = "exhausted" if exhausted else "unlinked"
+    log.info("keyframe %d: carried depth %s; %d pixels rendered from %d keyframes", index, why, has.sum(), n)
     if has.sum() < min_pixels:
         return depth, confidence
-    return rendered, np.where(has, PROPAGATED_CONFIDENCE, 0.0).astype(np.float32)
+    conf = np.where(has, PROPAGATED_CONFIDENCE, 0.0).astype(np.float32)
+    if not exhausted:  # the carried sliver stays, the rendered depth fills the rest
+        own = np.isfinite(depth) & (depth > 0)
+        rendered = np.where(own, depth, rendered).astype(np.float32)
+        own_conf = PROPAGATED_CONFIDENCE if confidence is None else confidence
+        conf = np.where(own, own_conf, conf).astype(np.float32)
+    return rendered, conf

@@ -93,3 +93,21 @@ def test_exhausted_depth_keeps_the_placeholder_when_nothing_earlier_is_in_view()
     chain, kfs, _, plane = _scene(turn_deg=120.0)  # turned away from everything the chain measured
     out, conf = exhausted_depth(chain, [chain], kfs, 9, 30, plane, None)
     assert out is plane and conf is None
+
+
+def test_a_carried_sliver_is_kept_and_the_rendered_depth_fills_the_rest():
+    """``encoder.mono_world_depth_unlinked``: a carried depth left on a strip at the edge the turn leaves
+    (8 of 64 columns) still measures something, but the next window's own depth cannot link to it."""
+    chain, kfs, truth, _ = _scene(turn_deg=25.0)
+    sliver = np.full((H, W), np.nan, np.float32)
+    sliver[:, :8] = 1.05 * truth[:, :8]  # the carried depth: its own values, 5 % off the rendered ones
+    sconf = np.where(np.isfinite(sliver), 0.8, 0.0).astype(np.float32)
+    same, c = exhausted_depth(chain, [chain], kfs, 9, 30, sliver, sconf)  # linked: kept
+    assert same is sliver and c is sconf
+    out, conf = exhausted_depth(chain, [chain], kfs, 9, 30, sliver, sconf, unlinked=True)
+    own = np.isfinite(sliver)
+    assert np.array_equal(out[own], sliver[own]) and np.all(conf[own] == 0.8)
+    fill = ~own & np.isfinite(out)
+    assert 0.3 < fill.mean() < 0.45  # measured 0.38 (the rendered overlap, less the sliver)
+    assert np.all(conf[fill] == 0.5)
+    assert np.median(np.abs(out[fill] / truth[fill] - 1.0)) < 0.008

@@ -87,9 +87,9 @@ class EncoderConfig:
     mono_link_weighted: bool = False  # mono: the scale link to the previous submap weighted by both depths' confidence (frontend/mono_link.py)
     mono_link_min_confidence: float = 0.0  # mono: with mono_link_weighted, pixels whose lower confidence is below this are not used
     mono_turn_rotation: bool = True  # mono: a low-parallax window keeps its rotation where PnP against the carried depth fails (PnP against a plane: a rotation-only model) instead of copying the previous pose
-    mono_world_depth: bool = False  # mono: a shared frame whose carried depth a low-parallax turn exhausted takes the chain's earlier measured depths rendered at its pose instead of a placeholder plane (slam/world_depth.py)
-    mono_world_depth_unlinked: bool = False  # mono, with mono_world_depth: a window whose own depth could not link to the carried depth (a sliver a turn left) is encoded again with the rendered depth filling the rest (slam/world_depth.py)
-    mono_link_max_spread: float = 0.0  # mono: a two-view window whose frame-0 depth disagrees with the shared depth by a robust log-ratio spread above this is refused (a wrong two-view geometry) and carries the shared depth like a low-parallax one (0: off)
+    mono_world_depth: bool = True  # mono: a shared frame whose carried depth a low-parallax turn exhausted takes the chain's earlier measured depths rendered at its pose instead of a placeholder plane (slam/world_depth.py; on since session 15)
+    mono_world_depth_unlinked: bool = True  # mono, with mono_world_depth: a window whose own depth could not link to the carried depth (a sliver a turn left) is encoded again with the rendered depth filling the rest (slam/world_depth.py; on since session 15)
+    mono_link_max_spread: float = 0.15  # mono: a two-view window whose frame-0 depth disagrees with the shared depth by a robust log-ratio spread above this is refused (a wrong two-view geometry) and carries the shared depth like a low-parallax one (0: off; 0.15 since session 15: right windows 0.003-0.075, the broken one 0.25)
     mono_focal_auto: bool = False  # mono: focal self-calibration from the first frames (frontend/mono_focal.py); off: docs/results.md sessions 10, 13
     mono_focal_auto_nominal: bool = True  # mono: ... and whenever the dataset says its intrinsics are nominal (7-Scenes: the depth camera's; docs/frontend.md)
     mono_focal_frames: int = 60  # frames read for that estimate

@@ -46,7 +46,7 @@ from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
 from gsslam.slam.plugins import call_plugins
 from gsslam.slam.poses import pose_now, relative_rgbd, tracked_pose
-from gsslam.slam.world_depth import exhausted_depth
+from gsslam.slam.world_depth import encode_with_world_depth
 from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
@@ -66,9 +66,6 @@ class Pipeline:
 
         self.cfg = cfg
         self.monocular = cfg.mode == "mono"
-        self.unlinked = (
-            cfg.encoder.mono_world_depth_unlinked
-        )  # mono: re-encode a window its sliver left unlinked
         self.intrinsics = intrinsics
         self.flow = make_flow_estimator(cfg.flow)
         self.selector = KeyframeSelector(cfg.keyframes)
@@ -257,28 +254,21 @@ class Pipeline:
     def _encode_window(self) -> None:
         chain = self.chains[-1]
         frames = self.window
-        shared_depth = shared_conf = carried = None
+        shared_depth = shared_conf = None
         if chain.encodings and frames[0].index in self.keyframes:
             shared_depth = self.keyframes[frames[0].index].depth
             shared_conf = keyframe_confidence(self.chains, self.keyframes[frames[0].index])
             if self.map_stage is not None and self.cfg.mapper.shared_depth_feedback:
                 shared_depth = self.map_stage.shared_depth(self.chains, frames[0].index, shared_depth)
-            if self.monocular and self.cfg.encoder.mono_world_depth:  # a turn exhausted the carried depth
-                args = (chain, self.chains, self.keyframes, frames[0].index, self.cfg.encoder.min_inliers)
-                carried = shared_depth
-                shared_depth, shared_conf = exhausted_depth(*args, shared_depth, shared_conf)
+        enc_cfg = self.cfg.encoder
         try:
-            enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
-            if carried is not None and shared_depth is carried and enc.meta.get("unlinked") and self.unlinked:
-                # the window's depth missed the carried sliver (a turn's edge): render the rest, encode again
-                shared = exhausted_depth(*args, shared_depth, shared_conf, unlinked=True)
-                if shared[0] is not shared_depth:
-                    shared_depth, shared_conf = shared
-                    enc = self.encoder.encode(
-                        frames, shared_depth=shared_depth, shared_confidence=shared_conf
-                    )
-            if self.monocular and self.cfg.encoder.mono_world_depth and shared_depth is not carried:
-                enc.meta["world_depth"] = True  # frame 0 speaks the earlier geometry in the previous units
+            if self.monocular and enc_cfg.mono_world_depth and shared_depth is not None:  # a turn may exhaust it
+                enc = encode_with_world_depth(
+                    self.encoder, frames, chain, self.chains, self.keyframes, shared_depth, shared_conf,
+                    enc_cfg.min_inliers, enc_cfg.mono_world_depth_unlinked,
+                )  # fmt: skip
+            else:
+                enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
         except GsslamError as e:
             self.events.append(Event(frames[-1].index, "encoder", str(e)))
             log.warning("submap encoding failed: %s", e)

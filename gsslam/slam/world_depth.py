@@ -131,3 +131,33 @@ def exhausted_depth(
         own_conf = PROPAGATED_CONFIDENCE if confidence is None else confidence
         conf = np.where(own, own_conf, conf).astype(np.float32)
     return rendered, conf
+
+
+def encode_with_world_depth(
+    encoder,  # the mono encoder (``encode(frames, shared_depth=, shared_confidence=)``)
+    frames: list,  # the window's keyframes; ``frames[0]`` is the shared frame
+    chain: Chain,
+    chains: list[Chain],
+    keyframes: dict[int, ChainKeyframe],
+    depth: np.ndarray,  # [h, w] the shared frame's carried depth (owner submap units)
+    confidence: np.ndarray | None,  # [h, w]
+    min_pixels: int,  # encoder.min_inliers
+    unlinked: bool,  # encoder.mono_world_depth_unlinked
+):  # -> SubmapEncoding
+    """A mono window encoded against its shared depth, or against the rendered depth where the carried
+    one measures nothing (:func:`exhausted_depth`); ``unlinked``: a window whose own depth could not link
+    to the carried depth (``meta["unlinked"]``: a sliver at a turn's edge) is encoded again with the
+    rendered depth filling the rest. A window encoded against rendered depth says so
+    (``meta["world_depth"]``): its frame 0 speaks the earlier geometry in the previous submap's units, and
+    the graph's scale link of that submap reads 1."""
+    args = (chain, chains, keyframes, frames[0].index, min_pixels)
+    shared, shared_conf = exhausted_depth(*args, depth, confidence)
+    enc = encoder.encode(frames, shared_depth=shared, shared_confidence=shared_conf)
+    if unlinked and shared is depth and enc.meta.get("unlinked"):
+        filled, filled_conf = exhausted_depth(*args, depth, shared_conf, unlinked=True)
+        if filled is not depth:
+            shared = filled
+            enc = encoder.encode(frames, shared_depth=filled, shared_confidence=filled_conf)
+    if shared is not depth:
+        enc.meta["world_depth"] = True
+    return enc

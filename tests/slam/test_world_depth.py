@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from gsslam.slam.chains import Chain, ChainKeyframe
-from gsslam.slam.world_depth import exhausted_depth, rendered_depth
+from gsslam.slam.world_depth import encode_with_world_depth, exhausted_depth, rendered_depth
 from gsslam.types import CameraIntrinsics, SubmapEncoding
 
 W, H, F = 64, 48, 50.0
@@ -111,3 +111,43 @@ def test_a_carried_sliver_is_kept_and_the_rendered_depth_fills_the_rest():
     assert 0.3 < fill.mean() < 0.45  # measured 0.38 (the rendered overlap, less the sliver)
     assert np.all(conf[fill] == 0.5)
     assert np.median(np.abs(out[fill] / truth[fill] - 1.0)) < 0.008
+
+
+class _Encoder:
+    """Records the shared depth of each call; its window's meta says "unlinked" while ``unlinked``."""
+
+    def __init__(self, unlinked: bool):
+        self.unlinked, self.calls = unlinked, []
+
+    def encode(self, frames, shared_depth=None, shared_confidence=None):
+        self.calls.append(shared_depth)
+        enc = SubmapEncoding(
+            [9], np.eye(4)[None], np.zeros((1, H, W, 3), np.float32), np.ones((1, H, W), np.float32), INTR
+        )
+        enc.meta = {"unlinked": True} if self.unlinked and len(self.calls) == 1 else {}
+        return enc
+
+
+class _Frame:
+    index = 9
+
+
+def test_a_window_is_encoded_against_the_rendered_depth_and_says_so():
+    chain, kfs, truth, plane = _scene(turn_deg=25.0)
+    args = (chain, [chain], kfs)
+    enc_plane = _Encoder(unlinked=False)  # the placeholder is replaced before the (single) encoding
+    out = encode_with_world_depth(enc_plane, [_Frame()], *args, plane, None, 30, unlinked=True)
+    assert len(enc_plane.calls) == 1 and enc_plane.calls[0] is not plane and out.meta["world_depth"]
+    measured = truth.astype(np.float32)  # a carried depth that measures the view and links: as it is
+    enc_kept = _Encoder(unlinked=False)
+    out = encode_with_world_depth(enc_kept, [_Frame()], *args, measured, None, 30, unlinked=True)
+    assert enc_kept.calls == [measured] and "world_depth" not in out.meta
+    sliver = np.full((H, W), np.nan, np.float32)
+    sliver[:, :8] = truth[:, :8]
+    enc_sliver = _Encoder(unlinked=True)  # the window could not link to the sliver: encoded again, filled
+    out = encode_with_world_depth(enc_sliver, [_Frame()], *args, sliver, None, 30, unlinked=True)
+    assert len(enc_sliver.calls) == 2 and enc_sliver.calls[0] is sliver and out.meta["world_depth"]
+    assert np.isfinite(enc_sliver.calls[1]).sum() > 2 * np.isfinite(sliver).sum()
+    enc_off = _Encoder(unlinked=True)  # encoder.mono_world_depth_unlinked off: one encoding, the sliver
+    out = encode_with_world_depth(enc_off, [_Frame()], *args, sliver, None, 30, unlinked=False)
+    assert enc_off.calls == [sliver] and "world_depth" not in out.meta

@@ -40,7 +40,7 @@ import numpy as np
 
 from gsslam.frontend.colour_focal import TRUNCATE_PX, FlowPair, depth_camera_points
 from gsslam.frontend.icp import grid_normals, reprojection_residuals, strided_points
-from gsslam.frontend.registration_joint import smoothed_depth
+from gsslam.frontend.registration_joint import plane_matches, smoothed_depth
 from gsslam.geometry import so3_exp, so3_log
 from gsslam.types import CameraIntrinsics
 
@@ -117,20 +117,11 @@ def depth_motion(
     Nt = grid_normals(Pt)
     src = Ps.reshape(-1, 3)
     src = src[np.isfinite(src).all(1)]
-    h, w = Pt.shape[:2]
     T = np.asarray(T_init, np.float64).copy()
     for _ in range(iterations):
-        p = src @ T[:3, :3].T + T[:3, 3]
-        p = p[p[:, 2] > 0.1]
-        u = np.rint(Kt[0, 0] * p[:, 0] / p[:, 2] + Kt[0, 2]).astype(int)
-        v = np.rint(Kt[1, 1] * p[:, 1] / p[:, 2] + Kt[1, 2]).astype(int)
-        ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        q, n, p = Pt[v[ins], u[ins]], Nt[v[ins], u[ins]], p[ins]
-        good = np.isfinite(q).all(1) & np.isfinite(n).all(1)
-        good[good] = np.linalg.norm(p[good] - q[good], axis=1) < max_dist
-        if good.sum() < 300:
+        p, q, n = plane_matches(src, T, Pt, Nt, Kt, max_dist)
+        if len(p) < 300:
             return None
-        q, n, p = q[good], n[good], p[good]
         sig = sigma0 + sigma2 * q[:, 2] ** 2
         r = np.einsum("ij,ij->i", n, p - q) / sig
         wt = np.minimum(1.0, huber / np.maximum(np.abs(r), 1e-12))

@@ -40,7 +40,7 @@ PRIOR_STRIDE = 4  # depth pixels sampled for the prior's normal matrix
 BASELINES_M = np.arange(-0.03, 0.1001, 0.0025)  # the profile's grid
 ITERATIONS = 6
 IRLS_FLOOR_PX = 0.25
-FIT_HALF_WIDTH_M = 0.0075  # the minimum: a parabola fitted over the profile this far either side of its lowest point
+FIT_HALF_WIDTH_M = 0.0075  # the minimum: a parabola fitted over the profile this far either side of its lowest
 
 
 def smoothed_depth(depth: np.ndarray, sigma_px: float) -> np.ndarray:  # [H, W] -> [H, W] float64, NaN holes
@@ -53,6 +53,28 @@ def smoothed_depth(depth: np.ndarray, sigma_px: float) -> np.ndarray:  # [H, W] 
     return np.where((den > 0.5) & (m > 0), num / np.maximum(den, 1e-9), np.nan)
 
 
+def plane_matches(
+    src: np.ndarray,  # [M, 3] finite source points (depth camera a)
+    T_b_a: np.ndarray,  # [4, 4] the motion they are moved by
+    Pt: np.ndarray,  # [h, w, 3] target grid points (NaN holes)
+    Nt: np.ndarray,  # [h, w, 3] their normals
+    Kt: np.ndarray,  # [3, 3] the grid's intrinsics
+    max_dist: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # moved points, matched points, normals [N, 3] each
+    """Projective association: each moved point in front of the camera with the target grid point it
+    projects onto, kept where that point and its normal exist and lie within ``max_dist``."""
+    p = src @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+    p = p[p[:, 2] > 0.1]
+    h, w = Pt.shape[:2]
+    u = np.rint(Kt[0, 0] * p[:, 0] / p[:, 2] + Kt[0, 2]).astype(int)
+    v = np.rint(Kt[1, 1] * p[:, 1] / p[:, 2] + Kt[1, 2]).astype(int)
+    ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    q, n, p = Pt[v[ins], u[ins]], Nt[v[ins], u[ins]], p[ins]
+    good = np.isfinite(q).all(1) & np.isfinite(n).all(1)
+    good[good] = np.linalg.norm(p[good] - q[good], axis=1) < max_dist
+    return p[good], q[good], n[good]
+
+
 def depth_information(
     depth_a: np.ndarray,  # [H, W] metres, NaN invalid (depth camera)
     depth_b: np.ndarray,  # [H, W]
@@ -62,21 +84,12 @@ def depth_information(
     sigma2: float = 0.002,
     max_dist: float = 0.05,
 ) -> np.ndarray:  # [6, 6] point-to-plane normal matrix (left perturbation of T_b_a; translation, rotation)
-    """What the depth geometry says about the motion: the point-to-plane normal matrix with smoothed normals."""
+    """What the depth geometry says about the motion: the point-to-plane normal matrix, smoothed normals."""
     Ps, _ = strided_points(smoothed_depth(depth_a, SMOOTH_PX), intr, PRIOR_STRIDE)
     Pt, Kt = strided_points(smoothed_depth(depth_b, SMOOTH_PX), intr, PRIOR_STRIDE)
     Nt = grid_normals(Pt)
     src = Ps.reshape(-1, 3)
-    p = src[np.isfinite(src).all(1)] @ T_b_a[:3, :3].T + T_b_a[:3, 3]
-    p = p[p[:, 2] > 0.1]
-    h, w = Pt.shape[:2]
-    u = np.rint(Kt[0, 0] * p[:, 0] / p[:, 2] + Kt[0, 2]).astype(int)
-    v = np.rint(Kt[1, 1] * p[:, 1] / p[:, 2] + Kt[1, 2]).astype(int)
-    ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    q, n, p = Pt[v[ins], u[ins]], Nt[v[ins], u[ins]], p[ins]
-    good = np.isfinite(q).all(1) & np.isfinite(n).all(1)
-    good[good] = np.linalg.norm(p[good] - q[good], axis=1) < max_dist
-    q, n, p = q[good], n[good], p[good]
+    p, q, n = plane_matches(src[np.isfinite(src).all(1)], T_b_a, Pt, Nt, Kt, max_dist)
     J = np.concatenate([n, np.cross(p, n)], 1) / (sigma0 + sigma2 * q[:, 2:3] ** 2)
     return J.T @ J
 

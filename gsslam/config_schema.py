@@ -301,6 +301,7 @@ class RunConfig:
     checkpoint_every: int = 5  # submaps between checkpoints (docs/run_folders.md); 0: none, not on signals
     native_eval_keyframes: int = 12  # map PSNR/SSIM at the input resolution on at most this many keyframes, evenly spaced (0: none; docs/evaluation.md)
     native_eval_held_out: int = 12  # ... and on at most this many of the held-out frames, evenly spaced (0: none)
+    trajectory_camera: str = "ground_truth"  # the camera trajectory.tum is: "ground_truth" (the one the dataset's ground truth poses: 7-Scenes' depth camera), "colour", "depth" (gsslam/run/trajectory_camera.py)
     trim_heap: bool = True  # after every new submap, hand the C heap's free pages back to the system (glibc malloc_trim; resident memory only, no result changes; docs/results.md, session 14)
 
 

@@ -19,7 +19,9 @@ Kinect v1 case, 585 / 525 ~ 1.114), every depth pixel has a scene point; ``< 1``
 holes. :class:`Misregistration` is the parsed form of the ``misregister`` dict of the ``playback``
 dataset; its ``report`` says which intrinsics the dataset hands out with the frames: ``"colour"``
 (the truth for the colour image) or ``"depth"`` (the depth camera's, as the 7-Scenes loader does with
-fx = fy = 585 for colour too).
+fx = fy = 585 for colour too); its ``ground_truth`` says which camera the dataset's ground truth poses:
+``"colour"`` or ``"depth"`` (7-Scenes' ``pose.txt`` are the depth camera's, ``T_world_colour @
+T_colour_depth``; :mod:`gsslam.run.trajectory_camera`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,10 @@ from gsslam.types import CameraIntrinsics
 REPORTS = ("colour", "depth")
 
 
+def _flag(v: Any) -> bool:
+    return str(v).lower() in ("true", "1", "yes")
+
+
 class MisregistrationError(DatasetError):
     """A misregistration setting is malformed."""
 
@@ -47,6 +53,7 @@ class Misregistration:
     focal_scale: float = 1.0
     report: str = "colour"
     raycast: bool = False  # synthetic scenes only: ray-cast the depth camera instead of re-projecting
+    ground_truth: str = "colour"  # the camera the ground truth poses: "colour" or "depth" (7-Scenes)
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.baseline_m):
@@ -55,18 +62,30 @@ class Misregistration:
             raise MisregistrationError(f"focal_scale must be positive, got {self.focal_scale}")
         if self.report not in REPORTS:
             raise MisregistrationError(f"report must be one of {REPORTS}, got {self.report!r}")
+        if self.ground_truth not in REPORTS:
+            raise MisregistrationError(f"ground_truth must be one of {REPORTS}, got {self.ground_truth!r}")
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> Misregistration | None:
         if d is None:
             return None
-        unknown = set(d) - {"baseline_m", "focal_scale", "report", "raycast"}
+        unknown = set(d) - {"baseline_m", "focal_scale", "report", "raycast", "ground_truth"}
         if unknown:
             raise MisregistrationError(
-                f"unknown misregister keys {sorted(unknown)}; use baseline_m, focal_scale, report, raycast"
+                f"unknown misregister keys {sorted(unknown)}; use baseline_m, focal_scale, report, raycast, "
+                "ground_truth"
             )
-        conv = {"report": str, "raycast": lambda v: str(v).lower() in ("true", "1", "yes")}
+        conv = {"report": str, "ground_truth": str, "raycast": _flag}
         return cls(**{k: conv.get(k, float)(v) for k, v in d.items()})
+
+    def T_colour_depth(self) -> np.ndarray:  # [4, 4] the depth camera in the colour camera frame
+        T = np.eye(4)
+        T[0, 3] = self.baseline_m
+        return T
+
+    def ground_truth_poses(self, T_world_colour: np.ndarray) -> np.ndarray:  # [..., 4, 4] -> the same
+        """The colour camera's true poses as the dataset's ground truth gives them (``ground_truth``)."""
+        return T_world_colour @ self.T_colour_depth() if self.ground_truth == "depth" else T_world_colour
 
     def depth_intrinsics(self, colour: CameraIntrinsics) -> CameraIntrinsics:
         return CameraIntrinsics(

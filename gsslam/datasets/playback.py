@@ -22,7 +22,7 @@ by a plan of source frames:
 - ``degrade``: ``None`` or a dict ``{"shutter", "blur_samples", "exposure_amp", "exposure_period",
   "seed"}`` (see :mod:`gsslam.datasets.degraded`): motion blur along the ground-truth motion of the
   played frames (needs depth and ground truth) and auto-exposure swings, applied to the colour image.
-- ``misregister``: ``None`` or a dict ``{"baseline_m", "focal_scale", "report"}`` (see
+- ``misregister``: ``None`` or a dict ``{"baseline_m", "focal_scale", "report", "ground_truth"}`` (see
   :mod:`gsslam.datasets.misregistered`): the depth is replaced by what an unregistered Kinect v1
   depth camera would see, handed out at the colour pixels.
 
@@ -211,7 +211,7 @@ class Playback:
         mr = self.misregistration
         if mr is not None and depth is not None:
             depth = misregister_depth(depth, self._colour_intrinsics, mr.baseline_m, mr.focal_scale)
-        gt = self._gt_poses[index].copy() if self._gt_ok[index] else None
+        gt = self._truth(self._gt_poses[index]) if self._gt_ok[index] else None
         return dataclasses.replace(
             f, index=index, timestamp=float(self._ts[index]), image=image, intrinsics=self.intrinsics,
             depth=depth, T_world_cam_gt=gt,
@@ -233,10 +233,19 @@ class Playback:
             image = motion_blur(image, depth, self._colour_intrinsics, ends, deg.blur_samples)
         return apply_exposure(image, deg.gain(index))
 
+    @property
+    def ground_truth_camera(self) -> str:  # the camera ground_truth() poses (misregister.ground_truth)
+        return "colour" if self.misregistration is None else self.misregistration.ground_truth
+
+    def _truth(self, poses: np.ndarray) -> np.ndarray:  # colour camera poses as the ground truth gives them
+        mr = self.misregistration
+        return poses.copy() if mr is None else mr.ground_truth_poses(poses)
+
     def ground_truth(self) -> Trajectory | None:
         if not self._gt_ok.any():
             return None
-        return Trajectory(self._ts[self._gt_ok], self._gt_poses[self._gt_ok], meta={"playback": self.name})
+        poses = self._truth(self._gt_poses[self._gt_ok])
+        return Trajectory(self._ts[self._gt_ok], poses, meta={"playback": self.name})
 
 
 class PlaybackDataset(Playback):

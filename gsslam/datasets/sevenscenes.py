@@ -14,7 +14,10 @@ CVPR 2013.
   These are the depth camera's, so the dataset says its intrinsics are nominal
   (``intrinsics_nominal``): a mono run then calibrates the focal from the images
   (``encoder.mono_focal_auto_nominal``).
-- Ground truth: ``frame-XXXXXX.pose.txt``, a 4x4 camera-to-world matrix ``T_world_cam``. Every pose
+- Ground truth: ``frame-XXXXXX.pose.txt``, a 4x4 camera-to-world matrix ``T_world_cam`` of the *depth*
+  camera (the poses are KinectFusion's on the depth images; ``ground_truth_camera = "depth"``, so an RGB-D
+  run writes the depth camera's trajectory from its registration estimate:
+  :mod:`gsslam.run.trajectory_camera`). Every pose
   file is read when the dataset is opened, so a malformed one is refused before a run starts; a
   missing file or a non-finite matrix (the convention for an untracked frame) gives ``None`` for
   that frame.
@@ -63,6 +66,8 @@ def read_pose_txt(path: Path) -> np.ndarray | None:  # -> [4, 4] or None when ab
 
 class SevenScenesDataset:
     """One 7-Scenes sequence; see the module docstring for the kwargs."""
+
+    ground_truth_camera = "depth"  # pose.txt: KinectFusion's depth-camera poses
 
     def __init__(
         self,

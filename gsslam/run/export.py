@@ -63,6 +63,7 @@ def _load_run(run_dir: Path, need_map: bool):
     from gsslam.io.ply import read_ply
     from gsslam.io.trajectory import read_tum
     from gsslam.run.render import load_intrinsics
+    from gsslam.run.trajectory_camera import image_poses_file
 
     for name in ("keyframes.tum", "intrinsics.yaml"):
         if not (run_dir / name).is_file():
@@ -70,7 +71,7 @@ def _load_run(run_dir: Path, need_map: bool):
                 f"{run_dir / name} not found; export needs the folder a `gsslam run` wrote "
                 "(runs made before exports existed wrote intrinsics.yaml only with a map: re-run)"
             )
-    kf = read_tum(run_dir / "keyframes.tum")
+    kf = read_tum(image_poses_file(run_dir, "keyframes"))  # the colour camera's: the images' camera
     intr = load_intrinsics(run_dir / "intrinsics.yaml")
     g = None
     if (run_dir / "map.ply").is_file():

@@ -28,6 +28,8 @@ OWN_FILES = (
     "metrics.json",
     "trajectory.tum",
     "keyframes.tum",
+    "trajectory_colour.tum",  # when trajectory.tum is another camera (gsslam/run/trajectory_camera.py)
+    "keyframes_colour.tum",
     "trajectory.png",
     "map.ply",
     "intrinsics.yaml",

@@ -28,6 +28,7 @@ from gsslam.eval.ate import compute_ate
 from gsslam.io.atomic import atomic_write_text
 from gsslam.io.trajectory import write_tum
 from gsslam.run.memory import peak_rss_mb
+from gsslam.run.trajectory_camera import COLOUR, COLOUR_SUFFIX, TrajectoryCamera
 from gsslam.slam.pipeline import Pipeline
 from gsslam.types import StageProgress, Trajectory
 
@@ -99,6 +100,7 @@ def write_outputs(
     provenance: dict | None = None,
     progress: StageProgress | None = None,
     extra: dict | None = None,
+    camera: TrajectoryCamera = COLOUR,
 ) -> dict:
     """Write the trajectories, ``metrics.json`` (partial), the plot, the map outputs, then ``metrics.json``
     complete; returns the metrics.
@@ -107,6 +109,10 @@ def write_outputs(
     ``peak_rss_mb_before_outputs`` the same before the outputs were written: the run's own peak where
     :func:`gsslam.run.memory.reset_peak_rss` could reset it when the run started (Linux), else the
     process's (``peak_rss_scope`` in ``extra`` says which).
+
+    ``camera``: the camera ``trajectory.tum`` / ``keyframes.tum`` and every ATE are of
+    (:mod:`gsslam.run.trajectory_camera`); when it is not the colour camera, the colour camera's poses are
+    written beside them (``*_colour.tum``). The map's outputs always use the colour camera's poses.
     """
     try:
         poses = pipe.frame_poses()
@@ -114,7 +120,10 @@ def write_outputs(
     except Exception as e:  # an interrupted graph may not answer; keep what the files need
         log.warning("could not read poses after interruption: %s", e)
         poses, kf_poses = {}, {}
-    traj, kf_traj = trajectory_of(pipe, poses), trajectory_of(pipe, kf_poses)
+    if not camera.is_colour:
+        write_tum(trajectory_of(pipe, poses), out / f"trajectory{COLOUR_SUFFIX}.tum")
+        write_tum(trajectory_of(pipe, kf_poses), out / f"keyframes{COLOUR_SUFFIX}.tum")
+    traj, kf_traj = trajectory_of(pipe, camera.apply(poses)), trajectory_of(pipe, camera.apply(kf_poses))
     write_tum(traj, out / "trajectory.tum")
     write_tum(kf_traj, out / "keyframes.tum")
     try:  # keyframe images + camera make the run folder self-contained for `gsslam export` / `--viz rerun`
@@ -132,10 +141,16 @@ def write_outputs(
     ate, pair = ate_metrics(gt, traj, align) if joined else (None, None)
     ate_kf, _ = ate_metrics(gt, kf_traj, align) if joined else (None, None)
     ate_bb, _ = (
-        ate_metrics(gt, trajectory_of(pipe, before_batch), align) if before_batch and joined else (None, None)
+        ate_metrics(gt, trajectory_of(pipe, camera.apply(before_batch)), align)
+        if before_batch and joined
+        else (None, None)
     )
     online = getattr(pipe, "online_poses", None)  # the pose process() returned for each frame
-    ate_on, _ = ate_metrics(gt, trajectory_of(pipe, online), align) if online and joined else (None, None)
+    ate_on, _ = (
+        ate_metrics(gt, trajectory_of(pipe, camera.apply(online)), align)
+        if online and joined
+        else (None, None)
+    )
     peak_mb = peak_rss_mb()
     metrics = {
         "dataset": getattr(ds, "name", type(ds).__name__),
@@ -158,7 +173,8 @@ def write_outputs(
         "ate_before_batch": ate_bb,
         "ate_online": ate_on,
         "frames_posed_online": len(online or {}),
-        "ate_per_chain": None if joined else ate_per_chain(pipe, gt, poses, align),
+        "ate_per_chain": None if joined else ate_per_chain(pipe, gt, camera.apply(poses), align),
+        "trajectory_camera": camera.record(),
         "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
         "interrupted": interrupted,
         "mapper": None,
@@ -187,7 +203,9 @@ def write_outputs(
             log.warning("trajectory plot failed: %s", e)
     if pipe.map_stage is not None:
         try:
-            metrics["mapper"] = write_map_outputs(pipe, ds, out, poses, done, progress=progress)
+            metrics["mapper"] = write_map_outputs(
+                pipe, ds, out, poses, done, progress=progress, camera=camera
+            )
         except Exception as e:  # the map must never lose a run's trajectory and numbers
             log.warning("map outputs failed: %s", e)
             metrics["mapper"] = {"error": str(e)}
@@ -212,6 +230,7 @@ def write_map_outputs(
     panels: int = 4,
     progress: StageProgress | None = None,
     panels_worst: int = 2,
+    camera: TrajectoryCamera = COLOUR,
 ) -> dict:
     """``map.ply``, ``intrinsics.yaml``, ``renders/`` panels; returns the map metrics.
 
@@ -273,7 +292,8 @@ def write_map_outputs(
         ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]
         gt = ds.ground_truth()
         align = "sim3" if pipe.monocular else "se3"
-        ev["ate_keyframes_refined_poses"], _ = ate_metrics(gt, trajectory_of(pipe, refined), align)
+        refined_cam = trajectory_of(pipe, camera.apply(refined))  # in the ground truth's camera, as every ATE
+        ev["ate_keyframes_refined_poses"], _ = ate_metrics(gt, refined_cam, align)
     empty = mapper.num_gaussians == 0
     if empty:
         log.warning(

@@ -21,6 +21,7 @@ from gsslam.errors import GsslamError
 from gsslam.geometry import invert_T
 from gsslam.io.atomic import atomic_path, atomic_write_text
 from gsslam.io.trajectory import TrajectoryIOError, read_tum
+from gsslam.run.trajectory_camera import image_poses_file
 from gsslam.types import CameraIntrinsics
 
 _log = logging.getLogger(__name__)
@@ -106,7 +107,7 @@ def render_run(
         raise RenderRunError(f"--every must be >= 1, got {every}")
     g = read_ply(run_dir / "map.ply")
     intr = load_intrinsics(run_dir / "intrinsics.yaml")
-    ts, poses = _read_tum(run_dir / "trajectory.tum")
+    ts, poses = _read_tum(image_poses_file(run_dir, "trajectory"))  # the colour camera's: the map's
     max_side = 160
     cfg_path = run_dir / "config.yaml"
     if cfg_path.is_file():

@@ -53,6 +53,7 @@ from gsslam.run.interrupt import DeferredInterrupt
 from gsslam.run.memory import HeapTrimmer, reset_peak_rss
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
+from gsslam.run.trajectory_camera import trajectory_camera
 from gsslam.slam.pipeline import Pipeline
 from gsslam.types import StageProgress
 
@@ -230,6 +231,9 @@ def run_dataset(
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
+        camera = trajectory_camera(  # the camera trajectory.tum is (7-Scenes' ground truth: the depth one)
+            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.baseline_m
+        )
         pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))
         if imu_stage is not None:
             pipe.add_plugin(imu_stage)
@@ -300,8 +304,9 @@ def run_dataset(
 
                 extra["imu"] = imu_metrics(imu_stage, pipe, ds.ground_truth())
             result.metrics = write_outputs(
-                pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages, extra=extra
-            )
+                pipe, ds, out, wall, done, interrupted, before_batch, prov, progress=stages, extra=extra,
+                camera=camera,
+            )  # fmt: skip
         remove_checkpoints(out)  # the run is complete: nothing to resume
     return result
 

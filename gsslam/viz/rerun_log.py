@@ -57,12 +57,14 @@ def record_run(run_dir: str | Path, out_rrd: str | Path, max_gaussians: int | No
     from gsslam.io.trajectory import read_tum
     from gsslam.run.keyframes import KEYFRAME_DIR, find_keyframe_images
     from gsslam.run.render import load_intrinsics
+    from gsslam.run.trajectory_camera import image_poses_file
 
     run_dir, out_rrd = Path(run_dir), Path(out_rrd)
     if not (run_dir / "trajectory.tum").is_file():
         raise RerunLogError(f"{run_dir / 'trajectory.tum'} not found; pass the folder a `gsslam run` wrote")
     traj = read_tum(run_dir / "trajectory.tum")
-    kf = read_tum(run_dir / "keyframes.tum") if (run_dir / "keyframes.tum").is_file() else None
+    kf_file = image_poses_file(run_dir, "keyframes")  # the colour camera's, which the keyframe images are
+    kf = read_tum(kf_file) if kf_file.is_file() else None
     intr = load_intrinsics(run_dir / "intrinsics.yaml") if (run_dir / "intrinsics.yaml").is_file() else None
     metrics = (
         json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else {}

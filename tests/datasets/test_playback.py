@@ -130,3 +130,22 @@ def test_playback_misregistered(bundled_tum):
         Misregistration.from_dict({"baseline": 0.02})
     with pytest.raises(MisregistrationError):
         Misregistration(report="ir")
+    with pytest.raises(MisregistrationError):
+        Misregistration(ground_truth="ir")
+
+
+def test_playback_ground_truth_of_the_depth_camera(bundled_tum):
+    """7-Scenes' ground truth poses the depth camera: ``ground_truth: depth`` gives the colour camera's true
+    poses moved to the depth camera, 25 mm along each pose's own x; the frames' images are unchanged."""
+    mr = {"baseline_m": 0.025, "focal_scale": 1.1, "report": "depth"}
+    colour = open_dataset("playback", bundled_tum, pattern="f", n=20, misregister=mr)
+    depth = open_dataset("playback", bundled_tum, pattern="f", n=20, misregister={**mr, "ground_truth": "depth"})
+    assert colour.ground_truth_camera == "colour" and depth.ground_truth_camera == "depth"
+    gc, gd = colour.ground_truth(), depth.ground_truth()
+    offset = np.einsum("nij,nj->ni", np.linalg.inv(gc.poses), np.c_[gd.positions, np.ones(len(gd))])[:, :3]
+    np.testing.assert_allclose(offset, np.tile([0.025, 0.0, 0.0], (len(gd), 1)), atol=1e-9)
+    np.testing.assert_allclose(gd.poses[:, :3, :3], gc.poses[:, :3, :3])
+    k = int(np.flatnonzero(np.isin(depth.timestamps(), gd.timestamps))[0])  # a frame with ground truth
+    j = int(np.flatnonzero(gd.timestamps == depth.timestamps()[k])[0])
+    np.testing.assert_allclose(depth[k].T_world_cam_gt, gd.poses[j], atol=1e-12)
+    np.testing.assert_array_equal(depth[k].image, colour[k].image)

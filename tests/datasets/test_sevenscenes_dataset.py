@@ -29,6 +29,7 @@ def test_layout_depth_and_poses(tmp_path):
     gt = ds.ground_truth()
     np.testing.assert_allclose(gt.poses, np.stack(truth["pose"]), rtol=1e-8, atol=1e-9)
     assert gt.meta["frame_indices"] == [0, 1, 2]
+    assert ds.ground_truth_camera == "depth"  # pose.txt: KinectFusion's poses of the depth camera
 
 
 def test_missing_or_invalid_poses(tmp_path):

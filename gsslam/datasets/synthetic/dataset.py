@@ -178,8 +178,16 @@ class SyntheticDataset:
     def timestamps(self) -> list[float]:
         return [i / self.fps for i in range(self.n_frames)]
 
+    @property
+    def ground_truth_camera(self) -> str:  # the camera ground_truth() poses (misregister.ground_truth)
+        return "colour" if self.misregistration is None else self.misregistration.ground_truth
+
+    def _truth(self, poses: np.ndarray) -> np.ndarray:  # colour camera poses as the ground truth gives them
+        mr = self.misregistration
+        return poses.copy() if mr is None else mr.ground_truth_poses(poses)
+
     def ground_truth(self) -> Trajectory:
-        return Trajectory(np.asarray(self.timestamps()), self._poses.copy())
+        return Trajectory(np.asarray(self.timestamps()), self._truth(self._poses))
 
     def __getitem__(self, index: int) -> Frame:
         if not -self.n_frames <= index < self.n_frames:
@@ -193,7 +201,7 @@ class SyntheticDataset:
             image=image,
             intrinsics=self.intrinsics,
             depth=depth,
-            T_world_cam_gt=self._poses[index].copy(),
+            T_world_cam_gt=self._truth(self._poses[index]),
         )
 
     def _as_captured(

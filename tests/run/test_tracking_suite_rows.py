@@ -24,6 +24,7 @@ def test_synth_room_rows_load_and_open(tmp_path):
     p.write_text(yaml.safe_dump(kinect))
     ds = open_dataset("synthetic", p)
     assert len(ds) == 1000 and ds.sensor is not None and ds.misregistration.report == "depth"
+    assert ds.ground_truth_camera == "depth"  # as 7-Scenes gives it: the depth camera's poses
     f = ds[500]
     assert f.image.shape == (240, 320, 3) and f.depth.shape == (240, 320)
     assert 0.8 < np.isfinite(f.depth).mean() < 1.0  # holes where the sensor gives none

@@ -31,7 +31,7 @@ from gsslam.config import load_config
 from gsslam.mapping.state import MapState
 from gsslam.run.run_metrics import evaluate_run
 from gsslam.run.sequence import run_sequence
-from gsslam.slam.pipeline import Pipeline
+from gsslam.slam import submap_step
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rgbd_dataset_freiburg3_teddy"
 FBF = dict(base="tum", pattern="fbf", pause_every=97, pause_len=15, jump_every=151, jump_len=4, seed=0)
@@ -60,7 +60,7 @@ def cmd_run(mode: str, out: str, *overrides: str) -> None:
 
         return w
 
-    Pipeline._map_submap = timed(Pipeline._map_submap, "map")  # the map stage, registrations included
+    submap_step.map_submap = timed(submap_step.map_submap, "map")  # the map stage, registrations included
     mapper_mod.register = timed(mapper_mod.register, "register", "n_register")
     c0 = time.process_time()
     res = _run(mode, out, list(overrides))

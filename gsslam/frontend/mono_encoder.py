@@ -19,7 +19,7 @@ At point-map resolution, for K+1 keyframes with frame 0 shared with the previous
    confidence: its parallax in the previous submap; none where that is low), so the translations
    are tied to the previous submap's geometry track by track instead of by one median.
 5. Dense depth per frame: two-ray triangulation of its flow to the frame with the widest
-   baseline; confidence grows with the parallax angle.
+   baseline; confidence grows with the parallax angle (:mod:`gsslam.frontend.mono_depth`).
 
 Low parallax / pure rotation (or no texture): no triangulation. With ``shared_depth`` the
 poses come from PnP against the shared frame's depth and depths are propagated from it
@@ -44,13 +44,13 @@ from gsslam.frontend.encoder import (
     resize_image,
     robust_depth_stats,
 )
-from gsslam.frontend.flow import (
-    DISFlow,
-    FlowEstimator,
-    chained_flows,
-    compose_flows,
-    forward_backward_mask,
-    textured_mask,
+from gsslam.frontend.flow import DISFlow, FlowEstimator, chained_flows
+from gsslam.frontend.mono_depth import (
+    FB_THRESHOLD_PX,
+    PROPAGATED_CONFIDENCE,
+    dense_depth,
+    fill_missing_depth,
+    propagate,
 )
 from gsslam.frontend.mono_init import (
     choose_hypothesis,
@@ -61,14 +61,11 @@ from gsslam.frontend.mono_init import (
 )
 from gsslam.frontend.mono_link import chain_link
 from gsslam.frontend.pose_estimation import pnp, random_flow_matches
-from gsslam.frontend.two_view import triangulate_rays, two_view_pose
+from gsslam.frontend.two_view import two_view_pose
 from gsslam.geometry import backproject, depth_to_points, invert_T
 from gsslam.types import Frame, SubmapEncoding
 
 log = logging.getLogger(__name__)
-
-FB_THRESHOLD_PX = 1.0  # point-map resolution
-PROPAGATED_CONFIDENCE = 0.5
 
 
 class MonoEncoder:
@@ -183,7 +180,7 @@ class MonoEncoder:
         if meta.get("shared_placeholder"):
             meta["scale_source"] = "placeholder"
 
-        points, conf = self._dense_depth(imgs, fw, bw, valid, T_local, intr)
+        points, conf = dense_depth(self.flow, imgs, fw, bw, valid, T_local, intr, cfg)
         if sd is not None and not _is_constant(sd):
             # the dense frame-0 depth against the shared depth: one robust log-ratio (on every pixel
             # both have, or weighted by confidence) puts the whole submap in the previous one's units
@@ -225,7 +222,7 @@ class MonoEncoder:
             else:
                 conf[0] = np.where(has, np.maximum(conf[0], PROPAGATED_CONFIDENCE), 0.0)
                 points[0] = depth_to_points(K, sd)
-        self._fill_missing_depth(points, conf, bw, T_local, K, meta)
+        fill_missing_depth(points, conf, bw, T_local, K, self.cfg.min_inliers, meta)
         meta.update(
             reference_frame=ref,
             scale=s * g,
@@ -238,10 +235,11 @@ class MonoEncoder:
     def _shared_depth_prior(self, sd, sc, uv0, intr):  # -> ([N] or None, [N] or float)
         """The BA prior from the shared depth: inverse depth at the frame-0 track pixels (NaN where none)
         and its relative std. With the shared depth's confidence ``sc`` (the previous submap's
-        triangulation parallax / (4 min_parallax), :meth:`_dense_depth`) the std is per track,
-        ``sigma / confidence`` (a rotation error d at parallax p shifts a triangulated depth by ~d/p),
-        and pixels below ``mono_shared_depth_min_confidence`` get none: far points seen at low parallax
-        no longer pull the scale. None without enough of it (or for a placeholder plane, no geometry)."""
+        triangulation parallax / (4 min_parallax), :func:`gsslam.frontend.mono_depth.dense_depth`) the
+        std is per track, ``sigma / confidence`` (a rotation error d at parallax p shifts a triangulated
+        depth by ~d/p), and pixels below ``mono_shared_depth_min_confidence`` get none: far points seen at
+        low parallax no longer pull the scale. None without enough of it (or for a placeholder plane, no
+        geometry)."""
         cfg = self.cfg
         if sd is None or _is_constant(sd):
             return None, 0.0
@@ -255,81 +253,6 @@ class MonoEncoder:
             sigma = shared_depth_sigmas(c, cfg.mono_shared_depth_sigma, cfg.mono_shared_depth_min_confidence)
             rho[~np.isfinite(sigma)] = np.nan
         return (rho, sigma) if np.isfinite(rho).sum() >= cfg.min_inliers else (None, 0.0)
-
-    # -- dense depth --------------------------------------------------------------------------
-    def _dense_depth(self, imgs, fw, bw, valid, T_local, intr):
-        """Per-frame depth from two-ray triangulation against the widest-baseline partner."""
-        n, (h, w) = len(imgs), imgs[0].shape[:2]
-        K = intr.K
-        centers = T_local[:, :3, 3]
-        uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1).reshape(-1, 2).astype(np.float64)
-        points = np.full((n, h, w, 3), np.nan, np.float32)
-        conf = np.zeros((n, h, w), np.float32)
-        for i in range(n):
-            j = int(np.argmax(np.linalg.norm(centers - centers[i], axis=1)))
-            if i == 0:
-                f_ij, ok = fw[j], valid[j]
-            elif j == 0:
-                f_ij = bw[i]
-                ok = forward_backward_mask(
-                    np.nan_to_num(bw[i], nan=1e6),
-                    np.nan_to_num(fw[i], nan=1e6),
-                    FB_THRESHOLD_PX,
-                    relative=0.01,
-                ) & textured_mask(imgs[i], self.cfg.min_texture_gradient)
-            else:
-                init = compose_flows(bw[i], fw[j])
-                f_ij = self.flow(imgs[i], imgs[j], init=np.nan_to_num(init))
-                f_ji = self.flow(imgs[j], imgs[i], init=np.nan_to_num(compose_flows(bw[j], fw[i])))
-                ok = forward_backward_mask(f_ij, f_ji, FB_THRESHOLD_PX, relative=0.01) & textured_mask(
-                    imgs[i], self.cfg.min_texture_gradient
-                )
-            T_j_i = invert_T(T_local[j]) @ T_local[i]
-            X, par, err = triangulate_rays(K, uv, uv + np.nan_to_num(f_ij.reshape(-1, 2)), T_j_i)
-            good = (
-                ok.reshape(-1)
-                & np.isfinite(X).all(1)
-                & (err < 2.0 * self.cfg.ransac_threshold_px)
-                & (par > 0.5 * self.cfg.min_parallax_deg)
-            )
-            X[~good] = np.nan
-            points[i] = X.reshape(h, w, 3)
-            conf[i] = np.where(good, np.clip(par / (4.0 * self.cfg.min_parallax_deg), 0.0, 1.0), 0.0).reshape(
-                h, w
-            )
-        return points, conf
-
-    # -- depth that every frame must have ----------------------------------------------------
-    def _propagate(self, P0, bw_i, T_i_0):
-        """Frame-0 points [h, w, 3] carried into frame i through its backward flow i -> 0 and ``T_i_0``."""
-        h, w = P0.shape[:2]
-        tgt = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1) + np.nan_to_num(bw_i, nan=-1e6)
-        ti = np.round(tgt).astype(int)
-        inside = (ti[..., 0] >= 0) & (ti[..., 0] < w) & (ti[..., 1] >= 0) & (ti[..., 1] < h)
-        X0 = np.full((h, w, 3), np.nan)
-        X0[inside] = P0[ti[inside][:, 1], ti[inside][:, 0]]
-        Xi = X0.reshape(-1, 3) @ T_i_0[:3, :3].T + T_i_0[:3, 3]
-        Xi[~(Xi[:, 2] > 0)] = np.nan
-        return Xi.reshape(h, w, 3)
-
-    def _fill_missing_depth(self, points, conf, bw, T_local, K, meta):
-        """A frame whose triangulation gave (almost) nothing gets frame 0's depth carried into it.
-
-        Every keyframe of a submap may become the shared frame of the next one, whose scale is
-        chained through this depth: a submap must never leave a frame without depth.
-        """
-        for i in range(1, len(points)):
-            if np.isfinite(points[i, ..., 2]).sum() >= self.cfg.min_inliers:
-                continue
-            Xi = self._propagate(points[0], bw[i], invert_T(T_local[i]))
-            points[i] = Xi
-            conf[i] = np.where(np.isfinite(Xi[..., 2]), np.minimum(conf[0], PROPAGATED_CONFIDENCE), 0.0)
-            meta.setdefault("depth_propagated", []).append(i)
-            if np.isfinite(Xi[..., 2]).sum() < self.cfg.min_inliers:  # no flow either: frame 0 as a plane
-                z0 = float(np.nanmedian(points[0, ..., 2])) if np.isfinite(points[0, ..., 2]).any() else 1.0
-                points[i] = depth_to_points(K, np.full(points.shape[1:3], z0, np.float32))
-                conf[i] = 0.0
-                meta["placeholder_depth"] = True
 
     # -- low parallax / rotation / no texture -------------------------------------------------
     def _degenerate(self, frames, imgs, fw, bw, valid, sd, intr, meta) -> SubmapEncoding:
@@ -382,9 +305,9 @@ class MonoEncoder:
             else:
                 T_local[i] = invert_T(res.T_tgt_src)
         for i in range(1, n):  # a placeholder stays a constant plane, so the next submap knows it as one
-            points[i] = P0 if placeholder else self._propagate(P0, bw[i], invert_T(T_local[i]))
+            points[i] = P0 if placeholder else propagate(P0, bw[i], invert_T(T_local[i]))
             conf[i] = np.where(np.isfinite(points[i, ..., 2]), c0, 0.0)
-        self._fill_missing_depth(points, conf, bw, T_local, K, meta)
+        fill_missing_depth(points, conf, bw, T_local, K, self.cfg.min_inliers, meta)
         log.warning(
             "mono encoder: no reliable two-view geometry in keyframes %s (%s)",
             [f.index for f in frames],

@@ -6,7 +6,7 @@ share: ``D(i-1, K)`` (the previous submap's triangulation of it) and ``D(i, 0)``
 translations by that submap's rotation error over its parallax (a rotation error d at parallax p
 shifts a triangulated depth by ~d/p: docs/results.md, "Drift on harder sequences, session 6"), so the
 pixels seen at high parallax in BOTH submaps carry the least biased link. The encoder's confidence is
-that parallax / (4 ``min_parallax_deg``) (:meth:`gsslam.frontend.mono_encoder.MonoEncoder._dense_depth`).
+that parallax / (4 ``min_parallax_deg``) (:func:`gsslam.frontend.mono_depth.dense_depth`).
 
 :func:`estimate_link` gives the link as a weighted median of the per-pixel log ratios, each pixel
 weighted by the lower of its two confidences, and its standard error: the weighted spread of the

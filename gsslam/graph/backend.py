@@ -23,7 +23,8 @@ Relinearisation thresholds per key character (:mod:`gsslam.graph.relinearization
 is checked against the map iSAM2 gets (:meth:`Backend.add_value` refuses a wrong dimension, naming the
 key); a new character grows the map and iSAM2 is rebuilt with it before the next update. The errors
 live in :mod:`gsslam.graph.rejection` and are importable from here; the solvability checks behind the
-blame in :mod:`gsslam.graph.solvability`.
+blame in :mod:`gsslam.graph.solvability`; the bookkeeping (factors by handle, the buffer, variable types,
+the replay log) in :mod:`gsslam.graph.factor_book`.
 """
 
 from __future__ import annotations
@@ -34,12 +35,13 @@ import re
 import gtsam
 import numpy as np
 
+from gsslam.graph.factor_book import FactorBook
 from gsslam.graph.rejection import BATCH_TAG, BackendError, RejectedError, Rejection, first_line
 from gsslam.graph.relinearization import RelinearizeThresholds
 from gsslam.graph.replay import replay
 from gsslam.graph.solvability import new_values_determined, solvable
 from gsslam.graph.staged_solve import solve
-from gsslam.graph.typed_values import factor_keys, type_name, value_at, value_dim
+from gsslam.graph.typed_values import type_name, value_at, value_dim
 
 __all__ = ["Backend", "BackendError", "RejectedError", "Rejection"]
 
@@ -66,21 +68,11 @@ class Backend:
         self._isam = gtsam.ISAM2(self._params)
         self._batch_max_iterations = batch_max_iterations
         self._batch_solve = batch_solve  # refine_batch's method (gsslam.graph.staged_solve)
-        self._factors: dict[int, gtsam.NonlinearFactor] = {}  # live factors by handle
-        self._index: dict[int, int] = {}  # handle -> iSAM2 factor index (sent factors)
-        self._pending: list[int] = []  # handles not yet sent
-        self._to_remove: list[int] = []  # handles of sent factors to remove at the next update
-        self._new_values = gtsam.Values()
-        self._types: dict[int, str] = {}  # key -> gtsam type name (for typed estimates)
-        self._next_handle = 0
-        self._names: dict[int, str] = {}  # handle -> user-given name
-        self._specs: dict[int, tuple] = {}  # handle -> factor spec (factors added with one)
+        self._book = FactorBook()  # factors by handle, the buffer of the next update, types, the log
         self._estimate: gtsam.Values | None = None
         self.last_result: gtsam.ISAM2Result | None = None
         self.last_batch = None  # the SolveReport of the last refine_batch
         self.config = None  # the GraphConfig it was made from (from_config), for a replay
-        self._log: list[tuple] = []  # every change, in order, as plain data (see replay_log)
-        self._unreplayable: str | None = None  # why the log cannot rebuild this backend
 
     @classmethod
     def from_config(cls, cfg) -> Backend:  # cfg: gsslam.config.GraphConfig
@@ -99,11 +91,11 @@ class Backend:
         Raises :class:`BackendError` when a factor was added without a spec (e.g. by a plugin) or the
         backend was not made by :meth:`from_config`.
         """
-        if self._unreplayable is not None:
-            raise BackendError(f"this graph cannot be checkpointed: {self._unreplayable}")
+        if self._book.unreplayable is not None:
+            raise BackendError(f"this graph cannot be checkpointed: {self._book.unreplayable}")
         if self.config is None:
             raise BackendError("this graph cannot be checkpointed: its backend was not made from a config")
-        return list(self._log)
+        return list(self._book.log)
 
     def replay(self, log: list[tuple], build) -> None:
         """Apply a :meth:`replay_log` to this (fresh) backend; ``build(spec)`` makes each factor
@@ -120,20 +112,7 @@ class Backend:
         """
         if factor is None or not isinstance(factor, gtsam.NonlinearFactor):
             raise BackendError(f"add_factor needs a gtsam factor, got {type(factor).__name__}")
-        handle = self._next_handle
-        self._next_handle += 1
-        self._factors[handle] = factor
-        if name:
-            self._names[handle] = str(name)
-        self._pending.append(handle)
-        if spec is not None:
-            self._specs[handle] = spec
-        if spec is None:
-            self._unreplayable = (
-                self._unreplayable or f"{self.describe_factor(handle)} was added without a spec"
-            )
-        self._log.append(("factor", name, spec))
-        return handle
+        return self._book.add_factor(factor, name, spec)
 
     def add_value(self, key: int, value) -> None:
         """Buffer the initial value of a NEW variable ``key`` (any gtsam value type).
@@ -145,39 +124,22 @@ class Backend:
             raise BackendError(f"variable {gtsam.DefaultKeyFormatter(key)} already has a value")
         if self._thresholds is not None:
             self._thresholds_grew |= self._thresholds.admit(key, value_dim(value), type_name(value))
-        self._new_values.insert(key, value)
-        self._types[key] = type_name(value)
-        if not isinstance(value, (gtsam.Similarity3, gtsam.Pose3, np.ndarray)):
-            self._unreplayable = (
-                self._unreplayable or f"value {gtsam.DefaultKeyFormatter(key)} is a {type_name(value)}"
-            )
-        self._log.append(("value", int(key), value))
+        self._book.add_value(key, value)
 
     def has_value(self, key: int) -> bool:
-        return key in self._types
+        return self._book.has_value(key)
 
     def remove_factors(self, handles: list[int]) -> None:
         """Remove factors by handle; sent ones leave iSAM2 at the next :meth:`update`."""
-        for h in handles:
-            if h not in self._factors:
-                raise BackendError(f"unknown or already removed factor handle {h}")
-            del self._factors[h]
-            self._names.pop(h, None)
-            if h in self._index:
-                self._to_remove.append(h)
-            else:
-                self._pending.remove(h)
-        self._log.append(("remove", [int(h) for h in handles]))
+        self._book.remove(handles)
 
     def live_specs(self) -> list[tuple]:
         """The specs of the live factors (added with a spec, not removed or rejected), in handle order."""
-        return [self._specs[h] for h in sorted(self._factors) if h in self._specs]
+        return self._book.live_specs()
 
     def describe_factor(self, handle: int) -> str:
         """``factor 'name' (Type on s0,s1)`` or ``factor #12 (Type on s0,s1)`` (for messages)."""
-        f = self._factors[handle]
-        label = repr(self._names[handle]) if handle in self._names else f"#{handle}"
-        return f"factor {label} ({type(f).__name__} on {factor_keys(f)})"
+        return self._book.describe(handle)
 
     # -- solving ----------------------------------------------------------------------------
     def update(self, extra_iterations: int = 0) -> gtsam.ISAM2Result | None:
@@ -186,15 +148,11 @@ class Backend:
         Raises :class:`RejectedError` after applying everything else when some buffered factors or
         values had to be dropped (see the module doc); the backend stays usable.
         """
-        self._log.append(("update", int(extra_iterations)))
-        if (
-            not self._pending
-            and not self._to_remove
-            and self._new_values.size() == 0
-            and not extra_iterations
-        ):
+        book = self._book
+        book.log.append(("update", int(extra_iterations)))
+        if not book.pending and not book.to_remove and book.new_values.size() == 0 and not extra_iterations:
             return None
-        rejected = self._reject_missing_keys()
+        rejected = book.reject_missing_keys()
         if self._thresholds_grew:
             self._rebuild_with_thresholds()
         try:
@@ -220,82 +178,42 @@ class Backend:
         when made, so a new one takes the grown map, re-seeded with the sent factors at the estimate."""
         self._thresholds.apply(self._params)
         self._thresholds_grew = False
-        sent = [h for h in self._index if h in self._factors]
+        sent = self._book.sent()
         log.info(
             "relinearisation thresholds for key characters %s: iSAM2 rebuilt", sorted(self._thresholds.dims)
         )
-        if not sent and not self._to_remove:
+        if not sent and not self._book.to_remove:
             self._isam = gtsam.ISAM2(self._params)
             return
         estimate = self._isam.calculateEstimate()
-        graph = gtsam.NonlinearFactorGraph()
-        for h in sent:
-            graph.add(self._factors[h])
+        graph = self._book.graph(sent)
         self._isam = gtsam.ISAM2(self._params)
         res = self._isam.update(graph, estimate)
-        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
-        self._to_remove = []
+        self._book.reindex(sent, res.getNewFactorsIndices())
+        self._book.to_remove = []
         self._estimate = None
 
     def _send(self) -> gtsam.ISAM2Result:
-        graph = gtsam.NonlinearFactorGraph()
-        for h in self._pending:
-            graph.add(self._factors[h])
-        remove = [self._index[h] for h in self._to_remove]
-        result = self._isam.update(graph, self._new_values, remove)
-        for h in self._to_remove:
-            del self._index[h]
-        for h, idx in zip(self._pending, result.getNewFactorsIndices()):
-            self._index[h] = int(idx)
-        self._pending, self._to_remove, self._new_values = [], [], gtsam.Values()
+        book = self._book
+        graph = book.graph(book.pending)
+        result = self._isam.update(graph, book.new_values, [book.index[h] for h in book.to_remove])
+        book.mark_sent(result.getNewFactorsIndices())
         return result
-
-    def _drop_pending(self, handle: int, cause: str) -> Rejection:
-        r = Rejection(self.describe_factor(handle), cause, handle=handle)
-        self._pending.remove(handle)
-        del self._factors[handle]
-        self._names.pop(handle, None)
-        return r
-
-    def _drop_new_value(self, key: int, cause: str) -> Rejection:
-        r = Rejection(f"value {gtsam.DefaultKeyFormatter(key)} ({self._types[key]})", cause, key=key)
-        self._new_values.erase(key)
-        del self._types[key]
-        return r
-
-    def _reject_missing_keys(self) -> list[Rejection]:
-        out = []
-        for h in list(self._pending):
-            missing = [k for k in self._factors[h].keys() if k not in self._types]
-            if missing:
-                names = ",".join(gtsam.DefaultKeyFormatter(k) for k in missing)
-                out.append(self._drop_pending(h, f"missing key {names}: no value; call add_value first"))
-        return out + self._reject_unused_values()
-
-    def _reject_unused_values(self) -> list[Rejection]:
-        """New values no buffered factor constrains (sent factors cannot name them) would be singular."""
-        used = {k for h in self._pending for k in self._factors[h].keys()}
-        return [
-            self._drop_new_value(k, "no factor constrains it")
-            for k in list(self._new_values.keys())
-            if k not in used
-        ]
 
     def _rollback(self) -> None:
         """iSAM2 threw mid-update (it is half-changed): rebuild it from the factors it held before."""
+        book = self._book
         theta = self._isam.getLinearizationPoint()
         old = gtsam.Values()
         for k in theta.keys():
-            if k in self._types and not self._new_values.exists(k):
-                old.insert(k, value_at(theta, k, self._types[k]))
-        sent = [h for h in self._index if h in self._factors]  # removals of this update still apply
-        graph = gtsam.NonlinearFactorGraph()
-        for h in sent:
-            graph.add(self._factors[h])
+            if k in book.types and not book.new_values.exists(k):
+                old.insert(k, value_at(theta, k, book.types[k]))
+        sent = book.sent()  # removals of this update still apply
+        graph = book.graph(sent)
         self._isam = gtsam.ISAM2(self._params)
         res = self._isam.update(graph, old)
-        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
-        self._to_remove = []
+        book.reindex(sent, res.getNewFactorsIndices())
+        book.to_remove = []
         self._estimate = None
         self._sent_graph, self._sent_values = graph, old
 
@@ -304,14 +222,14 @@ class Backend:
         without squaring the condition number) solves it; the backend keeps QR from then on."""
         if "ndeterminate" not in str(error) or self._params.getFactorization() == "QR":
             return None
-        near = re.search(r"variable\s+(\d+)", str(error))
-        if near is None or self._new_values.exists(int(near.group(1))) or not self._new_values_determined():
+        near, new = re.search(r"variable\s+(\d+)", str(error)), self._book.new_values
+        if near is None or new.exists(int(near.group(1))) or not self._new_values_determined():
             return None  # a new variable is under-constrained: QR would hide it (it does not check rank)
         self._params.setFactorization("QR")
-        sent = list(self._index)
+        sent = list(self._book.index)
         self._isam = gtsam.ISAM2(self._params)
         res = self._isam.update(self._sent_graph, self._sent_values)
-        self._index = {h: int(i) for h, i in zip(sent, res.getNewFactorsIndices())}
+        self._book.reindex(sent, res.getNewFactorsIndices())
         try:
             result = self._send()
         except Exception:  # noqa: BLE001 - not a conditioning problem: back to Cholesky, blame factors
@@ -325,33 +243,35 @@ class Backend:
         return result
 
     def _new_values_determined(self) -> bool:
-        pending = [self._factors[h] for h in self._pending]
-        return new_values_determined(pending, self._sent_values, self._new_values, self._types)
+        book = self._book
+        pending = [book.factors[h] for h in book.pending]
+        return new_values_determined(pending, self._sent_values, book.new_values, book.types)
 
     def _blame(self, error: Exception) -> list[Rejection]:
         """Drop the buffered culprits of a failed update (iSAM2 was rolled back)."""
-        cause = first_line(error)
+        book, cause = self._book, first_line(error)
         graph = self._sent_graph
         # blame: each buffered factor whose removal alone makes the system solvable
         values = gtsam.Values(self._sent_values)
-        values.insert(self._new_values)
-        blamed = [h for h in self._pending if self._solvable(graph, values, skip=h)]
-        if blamed and (len(blamed) < len(self._pending) or len(self._pending) == 1):
-            out = [self._drop_pending(h, cause) for h in blamed]
-            out += self._reject_unused_values()
+        values.insert(book.new_values)
+        blamed = [h for h in book.pending if self._solvable(graph, values, skip=h)]
+        if blamed and (len(blamed) < len(book.pending) or len(book.pending) == 1):
+            out = [book.drop_pending(h, cause) for h in blamed]
+            out += book.reject_unused_values()
             if self._solvable(graph, values, skip=None):
                 return out
         else:
             out = []
         # no single culprit (or several together): the whole batch goes
-        for h in list(self._pending):
-            out.append(self._drop_pending(h, cause + BATCH_TAG))
-        for k in list(self._new_values.keys()):
-            out.append(self._drop_new_value(k, "rolled back with its batch" + BATCH_TAG))
+        for h in list(book.pending):
+            out.append(book.drop_pending(h, cause + BATCH_TAG))
+        for k in list(book.new_values.keys()):
+            out.append(book.drop_new_value(k, "rolled back with its batch" + BATCH_TAG))
         return out
 
     def _solvable(self, sent: gtsam.NonlinearFactorGraph, values: gtsam.Values, skip: int | None) -> bool:
-        return solvable(sent, values, [self._factors[h] for h in self._pending if h != skip], self._types)
+        book = self._book
+        return solvable(sent, values, [book.factors[h] for h in book.pending if h != skip], book.types)
 
     def refine_batch(self, max_iterations: int | None = None) -> float:
         """The whole graph solved from the current estimate (Levenberg-Marquardt, one-shot or staged:
@@ -359,30 +279,30 @@ class Backend:
 
         Pending factors and values are included. Handles stay valid. Returns the final error.
         """
-        self._log.append(("batch", max_iterations))
-        rejected = self._reject_missing_keys()
-        handles = sorted(self._factors)
-        factors = [self._factors[h] for h in handles]
+        book = self._book
+        book.log.append(("batch", max_iterations))
+        rejected = book.reject_missing_keys()
+        handles = sorted(book.factors)
+        factors = [book.factors[h] for h in handles]
+        specs = [book.specs.get(h) for h in handles]
         initial = gtsam.Values(self.values())
         try:
             result, report = solve(
-                self._batch_solve, factors, [self._specs.get(h) for h in handles], initial,
+                self._batch_solve, factors, specs, initial,
                 max_iterations or self._batch_max_iterations,
             )  # fmt: skip
         except RuntimeError as e:  # nothing was changed: the iSAM2 state is still the last good one
             raise BackendError(f"batch refinement failed, graph unchanged: {first_line(e)}") from e
         log.debug("batch %s: error %.6g -> %.6g", report.method, report.error_initial, report.error_final)
         self.last_batch = report
-        graph = gtsam.NonlinearFactorGraph()
-        for f in factors:
-            graph.add(f)
+        graph = book.graph(handles)
         if self._thresholds_grew:  # a key character new since the last update
             self._thresholds.apply(self._params)
             self._thresholds_grew = False
         self._isam = gtsam.ISAM2(self._params)
         res = self._isam.update(graph, result)
-        self._index = {h: int(i) for h, i in zip(handles, res.getNewFactorsIndices())}
-        self._pending, self._to_remove, self._new_values = [], [], gtsam.Values()
+        book.reindex(handles, res.getNewFactorsIndices())
+        book.clear_buffer()
         self._estimate = None
         if rejected:
             raise RejectedError(rejected)
@@ -393,26 +313,27 @@ class Backend:
         """Current estimate of every variable (pending values included as given)."""
         if self._estimate is None:
             self._estimate = self._isam.calculateEstimate()
-        if self._new_values.size() == 0:
+        if self._book.new_values.size() == 0:
             return self._estimate
         out = gtsam.Values(self._estimate)
-        out.insert(self._new_values)
+        out.insert(self._book.new_values)
         return out
 
     def estimate(self, key: int):
         """Current estimate of one variable, as its gtsam type."""
-        if key not in self._types:
+        types = self._book.types
+        if key not in types:
             raise BackendError(f"unknown variable {gtsam.DefaultKeyFormatter(key)}")
-        at = getattr(gtsam.Values, f"at{self._types[key]}")
-        if self._new_values.exists(key):
-            return at(self._new_values, key)
+        at = getattr(gtsam.Values, f"at{types[key]}")
+        if self._book.new_values.exists(key):
+            return at(self._book.new_values, key)
         if self._estimate is not None:
             return at(self._estimate, key)
-        return getattr(self._isam, f"calculateEstimate{self._types[key]}")(key)
+        return getattr(self._isam, f"calculateEstimate{types[key]}")(key)
 
     def marginal_covariance(self, key: int) -> np.ndarray:
         """Marginal covariance of ``key`` in its tangent space (call :meth:`update` first)."""
-        if key not in self._types or self._new_values.exists(key):
+        if key not in self._book.types or self._book.new_values.exists(key):
             raise BackendError(
                 f"variable {gtsam.DefaultKeyFormatter(key)} is not in iSAM2 yet; call update()"
             )
@@ -420,21 +341,18 @@ class Backend:
 
     def error(self) -> float:
         """Total nonlinear error of the live factors at the current estimate."""
-        graph = gtsam.NonlinearFactorGraph()
-        for h in sorted(self._factors):
-            graph.add(self._factors[h])
-        return float(graph.error(self.values()))
+        return float(self._book.graph(sorted(self._book.factors)).error(self.values()))
 
     def factor(self, handle: int) -> gtsam.NonlinearFactor:
-        return self._factors[handle]
+        return self._book.factors[handle]
 
     def factor_index(self, handle: int) -> int | None:
         """iSAM2 factor index of a sent factor (None while pending)."""
-        return self._index.get(handle)
+        return self._book.index.get(handle)
 
     @property
     def num_factors(self) -> int:
-        return len(self._factors)
+        return len(self._book.factors)
 
     @property
     def isam_size(self) -> int:

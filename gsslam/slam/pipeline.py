@@ -11,7 +11,8 @@ Per frame (:meth:`Pipeline.process`):
    submap's last keyframe with its refined depth), **add it to the graph** (submap alignment,
    scale drift, adjacency points), add **flow correspondences** between each new keyframe and
    its predecessors in the previous submap (:mod:`gsslam.slam.cross_flow`), run one **iSAM2 update**,
-   close loops (:mod:`gsslam.slam.loop_stage`) and feed the Gaussian map (:mod:`gsslam.slam.map_stage`).
+   close loops (:mod:`gsslam.slam.loop_stage`) and feed the Gaussian map (:mod:`gsslam.slam.map_stage`);
+   these stages of one submap are :mod:`gsslam.slam.submap_step`.
 4. At the end: encode the tail (fewer than K keyframes), **batch refinement**, poses for all frames.
 
 Tracking loss for ``cfg.pipeline.max_lost_frames`` frames in a row closes the current chain of
@@ -40,13 +41,12 @@ from gsslam.frontend.tracking import (
     FrameTracker,
     is_blank,
 )
-from gsslam.slam import poses
-from gsslam.slam.chains import Chain, ChainKeyframe, Event, keyframe_confidence, pack_submap
+from gsslam.slam import poses, submap_step
+from gsslam.slam.chains import Chain, ChainKeyframe, Event, pack_submap
 from gsslam.slam.cross_flow import CrossFlowFeed
 from gsslam.slam.loop_stage import LoopStage
 from gsslam.slam.plugins import call_plugins
 from gsslam.slam.poses import pose_now, relative_rgbd, tracked_pose
-from gsslam.slam.world_depth import encode_with_world_depth
 from gsslam.types import CameraIntrinsics, Frame, StageProgress
 
 log = logging.getLogger(__name__)
@@ -252,120 +252,31 @@ class Pipeline:
     # ---- submaps -----------------------------------------------------------------------------
 
     def _encode_window(self) -> None:
-        chain = self.chains[-1]
-        frames = self.window
-        shared_depth = shared_conf = None
-        if chain.encodings and frames[0].index in self.keyframes:
-            shared_depth = self.keyframes[frames[0].index].depth
-            shared_conf = keyframe_confidence(self.chains, self.keyframes[frames[0].index])
-            if self.map_stage is not None and self.cfg.mapper.shared_depth_feedback:
-                shared_depth = self.map_stage.shared_depth(self.chains, frames[0].index, shared_depth)
-        enc_cfg = self.cfg.encoder
-        try:
-            if self.monocular and enc_cfg.mono_world_depth and shared_depth is not None:  # a turn may exhaust it
-                enc = encode_with_world_depth(
-                    self.encoder, frames, chain, self.chains, self.keyframes, shared_depth, shared_conf,
-                    enc_cfg.min_inliers, enc_cfg.mono_world_depth_unlinked,
-                )  # fmt: skip
-            else:
-                enc = self.encoder.encode(frames, shared_depth=shared_depth, shared_confidence=shared_conf)
-        except GsslamError as e:
-            self.events.append(Event(frames[-1].index, "encoder", str(e)))
-            log.warning("submap encoding failed: %s", e)
+        """The window as a submap through the graph, loops and map (:mod:`gsslam.slam.submap_step`)."""
+        chain, frames, cid = self.chains[-1], self.window, len(self.chains) - 1
+        enc = submap_step.encode(self, chain, frames)
+        if enc is None:
             self.window = [frames[-1]]
             return
-        cid = len(self.chains) - 1
-        added = []
         try:
-            sid = chain.graph.add_submap(enc)
-            chain.encodings.append(enc)
-            for pos, idx in enumerate(enc.frame_indices):
-                if pos == 0 and idx in self.keyframes:
-                    continue  # the shared frame keeps the depth of the submap it was made in
-                self.keyframes[idx] = ChainKeyframe(cid, sid, pos, enc.depths[pos].astype(np.float32))
-                added.append(idx)
-            flows = self.cross_flow.add(
-                chain, self.chains, self.keyframes, self.prev_frames, frames, self.map_stage is not None
-            )
-            self._update_graph(chain, sid, frames[-1].index)
-            if self.plugins:
-                self._call_plugins(chain, cid, "keyframe", [dict(frame_index=i) for i in added])
-                self._call_plugins(chain, cid, "submap", [dict(submap=sid, frame_index=frames[-1].index)])
-                self._update_graph(chain, sid, frames[-1].index)
-            t0 = time.perf_counter()
-            self.loop_stage.after_submap(chain, cid, sid, enc, frames)
-            self.stage_seconds["loops"] += time.perf_counter() - t0
-            self._relocalize(chain, cid, sid, frames[-1].index)
-            self.last_pose = chain.world_pose(chain.graph.keyframe_pose(frames[-1].index))
+            new = submap_step.add_to_graph(self, chain, cid, enc, frames)
         except GsslamError as e:
-            # The graph cannot take this submap (e.g. an ill-posed system): keep the chain as it
-            # was and continue with a new chain that starts at this submap's last keyframe.
+            # The graph cannot take this submap (e.g. an ill-posed system): the chain keeps what it had
+            # (rolled back) and a new chain starts at this submap's last keyframe.
             self.events.append(Event(frames[-1].index, "graph", str(e)))
             log.warning("graph update failed, starting a new chain: %s", e)
-            for idx in added:
-                self.keyframes.pop(idx, None)
-            if chain.encodings and chain.encodings[-1] is enc:
-                chain.encodings.pop()
-            chain.failed = True
             self.window = []
             self._start_chain(frames[-1])
             self.events.append(Event(frames[-1].index, "new_chain", "after a graph failure"))
             return
+        self.last_pose = new.T_world_last
         if self.map_stage is not None:
             t0 = time.perf_counter()
-            self._map_submap(chain, cid, sid, enc, frames, added, flows)
+            submap_step.map_submap(self, chain, cid, enc, frames, new)
             self.stage_seconds["map"] += time.perf_counter() - t0
-        pack_submap(enc, self.keyframes, added)
+        pack_submap(enc, self.keyframes, new.added)
         self.prev_frames = frames
         self.window = [frames[-1]]
-
-    def _update_graph(self, chain: Chain, sid: int, frame_index: int) -> None:
-        """One iSAM2 update; factors the backend rejected (and rolled back) are reported as events.
-
-        Raises only when the new submap itself was rejected (then the caller starts a new chain).
-        """
-        from gsslam.graph.backend import RejectedError
-        from gsslam.graph.keys import submap_key
-
-        try:
-            chain.graph.update()
-        except RejectedError as e:
-            self.events.append(Event(frame_index, "rejected", str(e)))
-            if not chain.graph.backend.has_value(submap_key(sid)):
-                raise
-            log.warning("frame %d: %s", frame_index, e)
-
-    def _call_plugins(self, chain: Chain, cid: int, kind: str, calls: list[dict]) -> None:
-        call_plugins(self.plugins, chain, cid, kind, calls, self.timestamps, self.events)
-
-    def _relocalize(self, chain: Chain, cid: int, sid: int, frame_index: int) -> None:
-        """A chain not yet in the world frame: try to place it against an earlier chain's submaps."""
-        if chain.in_world:
-            return
-        T = self.loop_stage.relocalize(self.chains, cid, sid)
-        if T is None:
-            return
-        chain.T_world_chain = T
-        chain.in_world = True
-        self.events.append(Event(frame_index, "rejoined", f"chain {cid} placed in the world frame"))
-        if self.map_stage is not None and sid > 0:  # its earlier submaps are in the map already
-            self.map_stage.follow_graph(self.chains)
-
-    def _map_submap(self, chain, cid, sid, enc, frames, added, flows) -> None:
-        """Feed the new submap to the Gaussian map; optional depth priors back to the graph."""
-        try:
-            self.map_stage.add_submap(self.chains, cid, sid, enc, frames, added, flows)
-            if self.map_stage.pending and not chain.failed:
-                if self.map_stage.send_registrations(chain, sid):
-                    chain.graph.update()
-                    self.map_stage.follow_graph(self.chains)
-            if self.cfg.mapper.depth_feedback and not chain.failed:
-                if self.map_stage.depth_priors(chain.graph, added):
-                    chain.graph.update()
-                    self.map_stage.follow_graph(self.chains)
-        except GsslamError as e:
-            self.events.append(Event(frames[-1].index, "mapper", str(e).splitlines()[0]))
-            log.warning("mapper failed on submap %d: %s", sid, e)
 
     def close_chain(self) -> None:
         """Encode the keyframes still waiting for a submap (the tail); the chain takes no more submaps.
@@ -391,7 +302,7 @@ class Pipeline:
 
             for cid, chain in enumerate(self.chains):
                 if chain.encodings and not chain.failed:
-                    self._call_plugins(chain, cid, "end", [{}])
+                    call_plugins(self.plugins, chain, cid, "end", [{}], self.timestamps, self.events)
                     try:
                         chain.graph.update()
                     except RejectedError as e:

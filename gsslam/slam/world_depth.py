@@ -17,7 +17,8 @@ import logging
 
 import numpy as np
 
-from gsslam.frontend.mono_encoder import PROPAGATED_CONFIDENCE, unmeasured
+from gsslam.frontend.mono_depth import PROPAGATED_CONFIDENCE
+from gsslam.frontend.mono_encoder import unmeasured
 from gsslam.geometry import backproject, sim3_scale
 from gsslam.slam.chains import Chain, ChainKeyframe, keyframe_confidence
 

@@ -29,6 +29,7 @@ def main(argv=None) -> int:
     from gsslam.datasets.base import loader
     from gsslam.frontend.encoder import make_encoder, resize_image
     from gsslam.frontend.flow import chained_flows, make_flow_estimator
+    from gsslam.frontend.mono_depth import dense_depth
     from gsslam.geometry import invert_T
 
     ds = loader("synthetic")(None, **ROOM)
@@ -45,7 +46,7 @@ def main(argv=None) -> int:
         fw, bw, valid = chained_flows(imgs, enc.flow, 1.0, enc.cfg.min_texture_gradient)
         out = []
         for name, T in (("encoder poses", e.T_local_cam), ("true poses", G)):
-            P, _ = enc._dense_depth(imgs, fw, bw, valid, T, e.intrinsics)
+            P, _ = dense_depth(enc.flow, imgs, fw, bw, valid, T, e.intrinsics, enc.cfg)
             for i in (0, 3, 6):
                 z, zt = P[i, ..., 2], fr[i].depth
                 ok = np.isfinite(z) & np.isfinite(zt)

@@ -93,6 +93,8 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_registration_ratio": Range(0.0, 2.0),
     "encoder.colour_registration_baseline_m": Range(-0.2, 0.2),
     "encoder.colour_registration_given": ("depth", "colour"),
+    "encoder.colour_registration_depth_dx_px": Range(-50.0, 50.0),
+    "encoder.colour_registration_depth_dy_px": Range(-50.0, 50.0),
     "encoder.colour_registration_depth_mean_tol": Range(0.0, 0.2),
     "encoder.colour_registration_depth_interp_tol": Range(0.0, 0.2),
     "encoder.colour_registration_joint_weight": NONNEG,

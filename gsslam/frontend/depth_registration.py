@@ -50,6 +50,7 @@ K_RANGE = (0.80, 1.25)  # scanned f_depth / f_colour
 BASELINE_RANGE_M = 0.06  # scanned |baseline|
 COARSE_K_STEP = 0.04  # the colour hypothesis reruns ICP on this grid, then refines
 COARSE_ICP_STRIDES = ICP_STRIDES[:-1]  # its coarse grid uses ICP without the finest level
+CENTRE_RANGE_PX = 8.0  # scanned |depth principal-point offset| (depth pixels; ~0.8 deg at 585 px)
 
 
 @dataclass(frozen=True)
@@ -71,27 +72,61 @@ class DepthRegistration:
     baseline_m_fixed_motion: float = float("nan")  # the fit's baseline when the joint or hand-eye one replaced it
     baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
     handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
+    depth_dx_px: float = 0.0  # the depth camera's principal point minus the colour one's, depth pixels:
+    depth_dy_px: float = 0.0  # ... its turn against the colour camera to first order (-f ry, +f rx; s16)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
 
     def depth_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
-        return intr.with_focal(1.0 if self.given == "depth" else self.ratio)
+        d = intr.with_focal(1.0 if self.given == "depth" else self.ratio)
+        if self.depth_dx_px or self.depth_dy_px:
+            d = replace(d, cx=d.cx + self.depth_dx_px, cy=d.cy + self.depth_dy_px)
+        return d
+
+    @property
+    def c_offset(self) -> tuple[float, float]:
+        return (self.depth_dx_px, self.depth_dy_px)
 
     def is_identity(self) -> bool:
-        return self.ratio == 1.0 and self.baseline_m == 0.0
+        return self.ratio == 1.0 and self.baseline_m == 0.0 and not (self.depth_dx_px or self.depth_dy_px)
 
 
 IDENTITY = DepthRegistration(ok=True)
 
 
-def _scan_k(pairs, Ts, intr: CameraIntrinsics, given: str, ks: np.ndarray, b: float) -> np.ndarray:
+def _scan_k(
+    pairs, Ts, intr: CameraIntrinsics, given: str, ks: np.ndarray, b: float, c_off=(0.0, 0.0)
+) -> np.ndarray:
     out = np.empty(len(ks))
     for j, k in enumerate(ks):
         reg = DepthRegistration(float(k), b, given)
         d = reg.depth_intrinsics(intr)
-        out[j] = mean_cost(pairs, Ts, reg.colour_intrinsics(intr), (d.fx, d.fy), b)[0]
+        out[j] = mean_cost(pairs, Ts, reg.colour_intrinsics(intr), (d.fx, d.fy), b, c_off)[0]
     return out
+
+
+def _fit_centre(pairs, Ts, intr, given: str, k: float, b: float):
+    """(k, b, (dx, dy), cost): the depth camera's principal-point offset scanned like ``k`` (session 16),
+    alternating with fine baseline and ``k`` scans."""
+    off = np.zeros(2)
+    for half, step in ((CENTRE_RANGE_PX, 0.5), (1.0, 0.1)):
+        for axis in (0, 1):
+            xs = np.arange(off[axis] - half, off[axis] + half + 1e-9, step)
+            cs = []
+            for x in xs:
+                o = off.copy()
+                o[axis] = x
+                cs.append(_scan_k(pairs, Ts, intr, given, np.array([k]), b, tuple(o))[0])
+            off[axis] = parabola_min(xs, np.array(cs))[0]
+        c_off = tuple(float(x) for x in off)
+        bs = np.arange(b - 0.005, b + 0.005 + 1e-9, 0.0005)
+        cb = np.array([_scan_k(pairs, Ts, intr, given, np.array([k]), float(x), c_off)[0] for x in bs])
+        b = parabola_min(bs, cb)[0]
+        ks = np.arange(k - 0.01, k + 0.01 + 1e-9, 0.0025)
+        k = parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, b, c_off))[0]
+    c_off = tuple(float(x) for x in off)
+    return k, b, c_off, float(_scan_k(pairs, Ts, intr, given, np.array([k]), b, c_off)[0])
 
 
 def _fit_fixed_motion(pairs, Ts, intr, given: str, k0: float | None, with_baseline: bool):
@@ -196,7 +231,9 @@ def pair_baselines(
     bs = np.arange(-BASELINE_RANGE_M - 0.04, BASELINE_RANGE_M + 0.04 + 1e-9, 0.002)
     out = []
     for p, T in zip(pairs, Ts):
-        cost = np.array([_scan_k([p], [T], intr, reg.given, np.array([reg.ratio]), float(b))[0] for b in bs])
+        cost = np.array(
+            [_scan_k([p], [T], intr, reg.given, np.array([reg.ratio]), float(b), reg.c_offset)[0] for b in bs]
+        )
         out.append(round(parabola_min(bs, cost)[0], 5))
     return tuple(out)
 
@@ -210,6 +247,7 @@ def registration_correction(
     fallback_gap: int | None = None,  # colour_focal.flow_pairs: narrower pairs when the wide ones are few
     joint_weight: float = 0.0,  # > 0: the baseline from motions re-solved with the flow (registration_joint)
     handeye: bool = False,  # the baseline from the colour vs depth motions where pairs agree (registration_handeye)
+    centre: bool = False,  # also fit the depth camera's principal-point offset (its turn, to first order)
 ) -> tuple[DepthRegistration, DepthRegistration | None]:
     """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
 
@@ -223,7 +261,10 @@ def registration_correction(
     motion a prior of that weight (:mod:`gsslam.frontend.registration_joint`, session 14). ``handeye``: an
     applied registration's baseline is then taken from each pair's colour motion (flow) against its depth
     motion (ICP), pooled by their covariances, where the pairs agree with that model
-    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays.
+    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays. ``centre``: an applied
+    registration's depth principal point is then scanned like ``k`` (with fine ``b`` and ``k`` scans; the
+    depth camera's rotation against the colour camera to first order, session 16), before the joint or
+    hand-eye baseline, which then use it.
     """
     if sum(f.depth is not None for f in frames) < 8:
         return IDENTITY, None
@@ -238,6 +279,8 @@ def registration_correction(
     if unregistered(est):
         est = fit_registration(pairs, intr)
     apply = unregistered(est)
+    if apply and centre:
+        est = _centre(pairs, intr, est)
     if apply and joint_weight > 0:
         est = _joint(pairs, intr, est, joint_weight)
     elif apply:
@@ -251,6 +294,18 @@ def registration_correction(
         "applied" if apply else "not applied", " ".join(f"{1000 * b:.1f}" for b in est.pair_baselines_m),
     )  # fmt: skip
     return (est if apply else IDENTITY), est
+
+
+def _centre(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegistration:
+    Ts = [p.T_b_a for p in pairs] if est.given == "depth" else _icp_at(pairs, intr, est.ratio, ICP_STRIDES)
+    if Ts is None:
+        return est
+    k, b, (dx, dy), cost = _fit_centre(pairs, Ts, intr, est.given, est.ratio, est.baseline_m)
+    log.info(
+        "depth registration: depth principal point offset (%.2f, %.2f) px, k %.4f -> %.4f, "
+        "baseline %.1f -> %.1f mm, %.3f -> %.3f px", dx, dy, est.ratio, k, 1000 * est.baseline_m, 1000 * b, est.cost, cost,
+    )  # fmt: skip
+    return replace(est, ratio=float(k), baseline_m=float(b), depth_dx_px=dx, depth_dy_px=dy, cost=cost)
 
 
 def _joint(pairs, intr: CameraIntrinsics, est: DepthRegistration, weight: float) -> DepthRegistration:
@@ -286,6 +341,8 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         "given": applied.given_by_config, "applied": not applied.is_identity(),
         "ratio_applied": float(applied.ratio), "baseline_m_applied": float(applied.baseline_m),
     }  # fmt: skip
+    if applied.depth_dx_px or applied.depth_dy_px:
+        rec["depth_centre_offset_px_applied"] = [float(applied.depth_dx_px), float(applied.depth_dy_px)]
     if est is not None:
         rec.update({
             "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),

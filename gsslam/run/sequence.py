@@ -315,10 +315,12 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if cfg.mode == "rgbd" and enc.colour_registration_ratio > 0:  # given: no estimate
         reg = DepthRegistration(
             enc.colour_registration_ratio, enc.colour_registration_baseline_m, enc.colour_registration_given,
-            ok=True, given_by_config=True,
+            ok=True, given_by_config=True, depth_dx_px=enc.colour_registration_depth_dx_px,
+            depth_dy_px=enc.colour_registration_depth_dy_px,
         )  # fmt: skip
-        log.info("depth-to-colour registration given: k %.4f, baseline %.1f mm, intrinsics of the %s camera",
-                 reg.ratio, 1000 * reg.baseline_m, reg.given)  # fmt: skip
+        log.info("depth-to-colour registration given: k %.4f, baseline %.1f mm, intrinsics of the %s camera, "
+                 "depth principal point offset (%.2f, %.2f) px", reg.ratio, 1000 * reg.baseline_m, reg.given,
+                 *reg.c_offset)  # fmt: skip
         return reg, None
     if cfg.mode != "rgbd" or not enc.colour_focal_auto:
         return IDENTITY, None
@@ -331,6 +333,7 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
             frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
             min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
             joint_weight=enc.colour_registration_joint_weight, handeye=enc.colour_registration_handeye,
+            centre=enc.colour_registration_centre,
         )  # fmt: skip
         if est is None or est.ok:
             break

@@ -78,7 +78,6 @@ class EncoderConfig:
     colour_registration_given: str = "depth"  # ... and the dataset's intrinsics belong to this camera (depth | colour)
     colour_registration_depth_dx_px: float = 0.0  # ... and the depth camera's principal point this far from the colour one's along x (depth px; its turn about y to first order, -f ry)
     colour_registration_depth_dy_px: float = 0.0  # ... along y (+f rx)
-    colour_registration_centre: bool = False  # the estimate also fits the depth camera's principal-point offset (its turn against the colour camera, to first order; session 16)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

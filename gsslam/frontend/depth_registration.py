@@ -50,7 +50,6 @@ K_RANGE = (0.80, 1.25)  # scanned f_depth / f_colour
 BASELINE_RANGE_M = 0.06  # scanned |baseline|
 COARSE_K_STEP = 0.04  # the colour hypothesis reruns ICP on this grid, then refines
 COARSE_ICP_STRIDES = ICP_STRIDES[:-1]  # its coarse grid uses ICP without the finest level
-CENTRE_RANGE_PX = 8.0  # scanned |depth principal-point offset| (depth pixels; ~0.8 deg at 585 px)
 
 
 @dataclass(frozen=True)
@@ -104,29 +103,6 @@ def _scan_k(
         d = reg.depth_intrinsics(intr)
         out[j] = mean_cost(pairs, Ts, reg.colour_intrinsics(intr), (d.fx, d.fy), b, c_off)[0]
     return out
-
-
-def _fit_centre(pairs, Ts, intr, given: str, k: float, b: float):
-    """(k, b, (dx, dy), cost): the depth camera's principal-point offset scanned like ``k`` (session 16),
-    alternating with fine baseline and ``k`` scans."""
-    off = np.zeros(2)
-    for half, step in ((CENTRE_RANGE_PX, 0.5), (1.0, 0.1)):
-        for axis in (0, 1):
-            xs = np.arange(off[axis] - half, off[axis] + half + 1e-9, step)
-            cs = []
-            for x in xs:
-                o = off.copy()
-                o[axis] = x
-                cs.append(_scan_k(pairs, Ts, intr, given, np.array([k]), b, tuple(o))[0])
-            off[axis] = parabola_min(xs, np.array(cs))[0]
-        c_off = tuple(float(x) for x in off)
-        bs = np.arange(b - 0.005, b + 0.005 + 1e-9, 0.0005)
-        cb = np.array([_scan_k(pairs, Ts, intr, given, np.array([k]), float(x), c_off)[0] for x in bs])
-        b = parabola_min(bs, cb)[0]
-        ks = np.arange(k - 0.01, k + 0.01 + 1e-9, 0.0025)
-        k = parabola_min(ks, _scan_k(pairs, Ts, intr, given, ks, b, c_off))[0]
-    c_off = tuple(float(x) for x in off)
-    return k, b, c_off, float(_scan_k(pairs, Ts, intr, given, np.array([k]), b, c_off)[0])
 
 
 def _fit_fixed_motion(pairs, Ts, intr, given: str, k0: float | None, with_baseline: bool):
@@ -247,7 +223,6 @@ def registration_correction(
     fallback_gap: int | None = None,  # colour_focal.flow_pairs: narrower pairs when the wide ones are few
     joint_weight: float = 0.0,  # > 0: the baseline from motions re-solved with the flow (registration_joint)
     handeye: bool = False,  # the baseline from the colour vs depth motions where pairs agree (registration_handeye)
-    centre: bool = False,  # also fit the depth camera's principal-point offset (its turn, to first order)
 ) -> tuple[DepthRegistration, DepthRegistration | None]:
     """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
 
@@ -261,10 +236,7 @@ def registration_correction(
     motion a prior of that weight (:mod:`gsslam.frontend.registration_joint`, session 14). ``handeye``: an
     applied registration's baseline is then taken from each pair's colour motion (flow) against its depth
     motion (ICP), pooled by their covariances, where the pairs agree with that model
-    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays. ``centre``: an applied
-    registration's depth principal point is then scanned like ``k`` (with fine ``b`` and ``k`` scans; the
-    depth camera's rotation against the colour camera to first order, session 16), before the joint or
-    hand-eye baseline, which then use it.
+    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays.
     """
     if sum(f.depth is not None for f in frames) < 8:
         return IDENTITY, None
@@ -279,8 +251,6 @@ def registration_correction(
     if unregistered(est):
         est = fit_registration(pairs, intr)
     apply = unregistered(est)
-    if apply and centre:
-        est = _centre(pairs, intr, est)
     if apply and joint_weight > 0:
         est = _joint(pairs, intr, est, joint_weight)
     elif apply:
@@ -294,18 +264,6 @@ def registration_correction(
         "applied" if apply else "not applied", " ".join(f"{1000 * b:.1f}" for b in est.pair_baselines_m),
     )  # fmt: skip
     return (est if apply else IDENTITY), est
-
-
-def _centre(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegistration:
-    Ts = [p.T_b_a for p in pairs] if est.given == "depth" else _icp_at(pairs, intr, est.ratio, ICP_STRIDES)
-    if Ts is None:
-        return est
-    k, b, (dx, dy), cost = _fit_centre(pairs, Ts, intr, est.given, est.ratio, est.baseline_m)
-    log.info(
-        "depth registration: depth principal point offset (%.2f, %.2f) px, k %.4f -> %.4f, "
-        "baseline %.1f -> %.1f mm, %.3f -> %.3f px", dx, dy, est.ratio, k, 1000 * est.baseline_m, 1000 * b, est.cost, cost,
-    )  # fmt: skip
-    return replace(est, ratio=float(k), baseline_m=float(b), depth_dx_px=dx, depth_dy_px=dy, cost=cost)
 
 
 def _joint(pairs, intr: CameraIntrinsics, est: DepthRegistration, weight: float) -> DepthRegistration:

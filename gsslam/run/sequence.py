@@ -333,7 +333,6 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
             frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
             min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
             joint_weight=enc.colour_registration_joint_weight, handeye=enc.colour_registration_handeye,
-            centre=enc.colour_registration_centre,
         )  # fmt: skip
         if est is None or est.ok:
             break

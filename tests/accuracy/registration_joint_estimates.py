@@ -54,7 +54,6 @@ def main() -> None:
     ap.add_argument("--handeye", action="store_true", help="encoder.colour_registration_handeye (session 15)")
     ap.add_argument("--rotation-deg", default="0,0,0", help="misregister.rotation_deg: rx,ry,rz")
     ap.add_argument("--offset", default="0,0", help="misregister.offset_m: ty,tz")
-    ap.add_argument("--centre", action="store_true", help="encoder.colour_registration_centre (session 16)")
     ap.add_argument("--baseline", type=float, default=SEVEN["baseline_m"], help="misregister.baseline_m")
     a = ap.parse_args()
     extra = {
@@ -68,15 +67,14 @@ def main() -> None:
         frames = [ds[i] for i in range(a.start, a.start + a.frames)]
         for w in (float(x) for x in a.weights.split(",")):
             t = time.perf_counter()
-            reg, est = registration_correction(frames, flow, 0.02, 0.01, 0.15, 2, joint_weight=w, handeye=a.handeye,
-                                               centre=a.centre)
+            reg, est = registration_correction(frames, flow, 0.02, 0.01, 0.15, 2, joint_weight=w, handeye=a.handeye)
             alone = " ".join(f"{1000 * b:.0f}" for b in est.pair_baselines_m)
             print(f"{row} ({a.preset}, {a.max_side} px) frames {a.start}-{a.start + a.frames - 1} joint_weight {w:g}: {est.pairs} pairs, "
                   f"k {est.ratio:.4f}, b {1000 * est.baseline_m:.1f} mm (fixed motions "
                   f"{1000 * est.baseline_m_fixed_motion:.1f}; hand-eye {1000 * est.baseline_m_handeye:.1f}, "
                   f"median chi2 "
-                  f"{est.handeye_median_chi2:.1f}), depth centre offset ({est.depth_dx_px:.2f}, "
-                  f"{est.depth_dy_px:.2f}) px, cost {est.cost:.4f} px, applied {not reg.is_identity()}; alone: {alone} "
+                  f"{est.handeye_median_chi2:.1f}), cost {est.cost:.4f} px, applied {not reg.is_identity()}; "
+                  f"alone: {alone} "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
 
 

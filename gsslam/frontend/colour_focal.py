@@ -136,23 +136,19 @@ def depth_camera_points(
     colour: CameraIntrinsics,  # of the colour image
     f_depth: tuple[float, float],  # (fx, fy) of the depth camera (same principal point)
     baseline_m: float = 0.0,  # the depth camera's centre in the colour camera frame, along x
-    c_offset: tuple[float, float] = (0.0, 0.0),  # depth principal point minus the colour one's (px)
 ) -> tuple[np.ndarray, np.ndarray]:  # X [M, 3] depth camera frame (metres), ok [M] bool (depth found)
     """The scene point behind each flow pixel ``pair.uv_a``, in the depth camera's frame.
 
     With a baseline the depth pixel of a colour pixel depends on its depth: found by two fixed-point
-    steps from the zero-baseline pixel. ``c_offset``: the depth camera turned against the colour camera, to
-    first order (a turn ``ry`` about y moves its principal point by ``-f_depth ry``, ``rx`` about x by
-    ``+f_depth rx``; session 16)."""
+    steps from the zero-baseline pixel."""
     c = np.array([colour.cx, colour.cy])
     fc = np.array([colour.fx, colour.fy])
     fd = np.asarray(f_depth, dtype=np.float64)
-    cd = c + np.asarray(c_offset, dtype=np.float64)
     h, w = pair.depth_a.shape
     xn = (pair.uv_a - c) / fc  # [M, 2] normalised colour rays
     z = np.full(len(xn), np.inf)  # first step: the zero-baseline pixel
     for _ in range(3 if baseline_m else 1):
-        pd = np.rint(cd + fd * (xn - np.array([baseline_m, 0.0]) / z[:, None])).astype(int)
+        pd = np.rint(c + fd * (xn - np.array([baseline_m, 0.0]) / z[:, None])).astype(int)
         inside = (pd[:, 0] >= 0) & (pd[:, 0] < w) & (pd[:, 1] >= 0) & (pd[:, 1] < h)
         zz = np.full(len(pd), np.nan)
         zz[inside] = pair.depth_a[pd[inside, 1], pd[inside, 0]]
@@ -168,10 +164,9 @@ def reprojection_cost(
     colour: CameraIntrinsics,  # of the colour image
     f_depth: tuple[float, float],  # (fx, fy) of the depth camera (same principal point)
     baseline_m: float = 0.0,  # the depth camera's centre in the colour camera frame, along x
-    c_offset: tuple[float, float] = (0.0, 0.0),  # depth_camera_points'
 ) -> tuple[float, int]:  # -> (sum of truncated errors in px, count)
     """Move each flow pixel by ``T_b_a`` through its depth; compare with the flow target (module doc)."""
-    X, ok = depth_camera_points(pair, colour, f_depth, baseline_m, c_offset)
+    X, ok = depth_camera_points(pair, colour, f_depth, baseline_m)
     b = np.array([baseline_m, 0.0, 0.0])
     Xb = X[ok] @ T_b_a[:3, :3].T + T_b_a[:3, 3] + b  # colour camera frame b
     front = Xb[:, 2] > 1e-3
@@ -187,11 +182,10 @@ def mean_cost(
     colour: CameraIntrinsics,
     f_depth: tuple[float, float],
     baseline_m: float = 0.0,
-    c_offset: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[float, int]:  # -> (mean truncated error px over all pairs, points)
     tot, cnt = 0.0, 0
     for p, T in zip(pairs, Ts):
-        s, m = reprojection_cost(p, T, colour, f_depth, baseline_m, c_offset)
+        s, m = reprojection_cost(p, T, colour, f_depth, baseline_m)
         tot, cnt = tot + s, cnt + m
     return tot / max(cnt, 1), cnt
 

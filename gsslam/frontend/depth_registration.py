@@ -41,6 +41,7 @@ from gsslam.frontend.colour_focal import (
 from gsslam.frontend.flow import FlowEstimator
 from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
+from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
 
 log = logging.getLogger(__name__)
@@ -71,37 +72,32 @@ class DepthRegistration:
     baseline_m_fixed_motion: float = float("nan")  # the fit's baseline when the joint or hand-eye one replaced it
     baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
     handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
-    depth_dx_px: float = 0.0  # the depth camera's principal point minus the colour one's, depth pixels:
-    depth_dy_px: float = 0.0  # ... its turn against the colour camera to first order (-f ry, +f rx; s16)
+    depth_rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_colour_depth's rotation vector (s16)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
 
     def depth_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
-        d = intr.with_focal(1.0 if self.given == "depth" else self.ratio)
-        if self.depth_dx_px or self.depth_dy_px:
-            d = replace(d, cx=d.cx + self.depth_dx_px, cy=d.cy + self.depth_dy_px)
-        return d
+        return intr.with_focal(1.0 if self.given == "depth" else self.ratio)
 
-    @property
-    def c_offset(self) -> tuple[float, float]:
-        return (self.depth_dx_px, self.depth_dy_px)
+    def R_colour_depth(self) -> np.ndarray | None:  # [3, 3] the depth camera's turn; None: not turned
+        if not any(self.depth_rotation_deg):
+            return None
+        return so3_exp(np.radians(np.asarray(self.depth_rotation_deg, dtype=np.float64)))
 
     def is_identity(self) -> bool:
-        return self.ratio == 1.0 and self.baseline_m == 0.0 and not (self.depth_dx_px or self.depth_dy_px)
+        return self.ratio == 1.0 and self.baseline_m == 0.0 and not any(self.depth_rotation_deg)
 
 
 IDENTITY = DepthRegistration(ok=True)
 
 
-def _scan_k(
-    pairs, Ts, intr: CameraIntrinsics, given: str, ks: np.ndarray, b: float, c_off=(0.0, 0.0)
-) -> np.ndarray:
+def _scan_k(pairs, Ts, intr: CameraIntrinsics, given: str, ks: np.ndarray, b: float) -> np.ndarray:
     out = np.empty(len(ks))
     for j, k in enumerate(ks):
         reg = DepthRegistration(float(k), b, given)
         d = reg.depth_intrinsics(intr)
-        out[j] = mean_cost(pairs, Ts, reg.colour_intrinsics(intr), (d.fx, d.fy), b, c_off)[0]
+        out[j] = mean_cost(pairs, Ts, reg.colour_intrinsics(intr), (d.fx, d.fy), b)[0]
     return out
 
 
@@ -207,9 +203,7 @@ def pair_baselines(
     bs = np.arange(-BASELINE_RANGE_M - 0.04, BASELINE_RANGE_M + 0.04 + 1e-9, 0.002)
     out = []
     for p, T in zip(pairs, Ts):
-        cost = np.array(
-            [_scan_k([p], [T], intr, reg.given, np.array([reg.ratio]), float(b), reg.c_offset)[0] for b in bs]
-        )
+        cost = np.array([_scan_k([p], [T], intr, reg.given, np.array([reg.ratio]), float(b))[0] for b in bs])
         out.append(round(parabola_min(bs, cost)[0], 5))
     return tuple(out)
 
@@ -299,8 +293,8 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         "given": applied.given_by_config, "applied": not applied.is_identity(),
         "ratio_applied": float(applied.ratio), "baseline_m_applied": float(applied.baseline_m),
     }  # fmt: skip
-    if applied.depth_dx_px or applied.depth_dy_px:
-        rec["depth_centre_offset_px_applied"] = [float(applied.depth_dx_px), float(applied.depth_dy_px)]
+    if any(applied.depth_rotation_deg):
+        rec["depth_rotation_deg_applied"] = [float(x) for x in applied.depth_rotation_deg]
     if est is not None:
         rec.update({
             "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),
@@ -325,6 +319,7 @@ def reproject_depth(
     baseline_m: float,  # the depth camera's centre in the colour camera frame, along x
     mean_tol: float = 0.0,  # > 0: the mean of the samples within this relative depth of the nearest
     interp_tol: float = 0.0,  # > 0: then read the depth image at the exact pixel where its 4 neighbours agree
+    R_colour_depth: np.ndarray | None = None,  # [3, 3] the depth camera's turn (None: none; session 16)
 ) -> np.ndarray:  # [H, W] float32 metres at the colour pixels, NaN where nothing lands
     """Depth seen from the colour camera: back-project, shift by the baseline, project, nearest wins.
 
@@ -342,6 +337,9 @@ def reproject_depth(
     z = depth[vs, us].astype(np.float64)
     x = (us - depth_intr.cx) / depth_intr.fx * z + baseline_m
     y = (vs - depth_intr.cy) / depth_intr.fy * z
+    if R_colour_depth is not None:  # X_colour = R (X_depth) + (b, 0, 0): the cloud stays rigid
+        Xc = np.stack([x - baseline_m, y, z], 1) @ R_colour_depth.T
+        x, y, z = Xc[:, 0] + baseline_m, Xc[:, 1], Xc[:, 2]
     u = colour_intr.cx + colour_intr.fx * x / z
     v = colour_intr.cy + colour_intr.fy * y / z
     if colour_intr.fx > depth_intr.fx * 1.0001:
@@ -369,7 +367,9 @@ def reproject_depth(
     out[~np.isfinite(out)] = np.nan
     out = out.reshape(h, w)
     if interp_tol > 0:
-        out = _interpolate_at_colour_pixels(out, depth, depth_intr, colour_intr, baseline_m, interp_tol)
+        out = _interpolate_at_colour_pixels(
+            out, depth, depth_intr, colour_intr, baseline_m, interp_tol, R_colour_depth
+        )
     return out.astype(np.float32)
 
 
@@ -380,21 +380,34 @@ def _interpolate_at_colour_pixels(
     colour_intr: CameraIntrinsics,
     baseline_m: float,
     tol: float,
+    R_colour_depth: np.ndarray | None = None,
 ) -> np.ndarray:  # [H, W] float64
     h, w = z_col.shape
     vs, us = np.nonzero(np.isfinite(z_col))
     z = z_col[vs, us]
-    ud = depth_intr.cx + depth_intr.fx * ((us - colour_intr.cx) / colour_intr.fx - baseline_m / z)
-    vd = depth_intr.cy + depth_intr.fy * (vs - colour_intr.cy) / colour_intr.fy
+    scale = None  # a turned depth camera: its z along the colour ray is z * scale
+    if R_colour_depth is None:
+        ud = depth_intr.cx + depth_intr.fx * ((us - colour_intr.cx) / colour_intr.fx - baseline_m / z)
+        vd = depth_intr.cy + depth_intr.fy * (vs - colour_intr.cy) / colour_intr.fy
+    else:
+        ray = np.stack([(us - colour_intr.cx) / colour_intr.fx, (vs - colour_intr.cy) / colour_intr.fy,
+                        np.ones(len(us))], 1)  # fmt: skip
+        Xd = (ray * z[:, None] - np.array([baseline_m, 0.0, 0.0])) @ R_colour_depth  # R^T (X - t)
+        ud = depth_intr.cx + depth_intr.fx * Xd[:, 0] / Xd[:, 2]
+        vd = depth_intr.cy + depth_intr.fy * Xd[:, 1] / Xd[:, 2]
+        scale, z = Xd[:, 2] / z, Xd[:, 2]  # compare and interpolate in the depth camera's z
     u0, v0 = np.floor(ud).astype(np.int64), np.floor(vd).astype(np.int64)
     inside = (u0 >= 0) & (u0 + 1 < w) & (v0 >= 0) & (v0 + 1 < h)
     vs, us, z, ud, vd, u0, v0 = (a[inside] for a in (vs, us, z, ud, vd, u0, v0))
+    scale = None if scale is None else scale[inside]
     fu, fv = ud - u0, vd - v0
     d = np.nan_to_num(np.asarray(depth, np.float64), nan=-1.0)
     q = [d[v0, u0], d[v0, u0 + 1], d[v0 + 1, u0], d[v0 + 1, u0 + 1]]
     wts = [(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv]
     agree = np.all([np.abs(x - z) <= tol * z for x in q], axis=0)
     val = sum(wt * x for wt, x in zip(wts, q))
+    if scale is not None:
+        val = val / scale  # back to the colour camera's z (to first order in the baseline)
     out = z_col.copy()
     out[vs[agree], us[agree]] = val[agree]
     return out
@@ -409,6 +422,6 @@ def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     if depth is not None:
         depth = reproject_depth(
             depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m,
-            reg.depth_mean_tol, reg.depth_interp_tol,
+            reg.depth_mean_tol, reg.depth_interp_tol, reg.R_colour_depth(),
         )  # fmt: skip
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

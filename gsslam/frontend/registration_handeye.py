@@ -77,10 +77,9 @@ def colour_motion(
     baseline_m: float,
     T_init: np.ndarray,  # [4, 4] colour camera motion to start from
     iterations: int = 12,
-    c_offset: tuple[float, float] = (0.0, 0.0),  # the depth camera's principal point minus the colour one's
 ) -> tuple[np.ndarray, np.ndarray] | None:  # T_b_a colour camera [4, 4], its covariance [6, 6] (left)
     """The colour camera's motion from the pair's flow (module doc); None with too few flow points."""
-    X, ok = depth_camera_points(pair, colour, f_depth, baseline_m, c_offset)
+    X, ok = depth_camera_points(pair, colour, f_depth, baseline_m)
     X = X[ok] + np.array([baseline_m, 0.0, 0.0])  # colour camera frame a
     uv = pair.uv_b[ok]
     if len(X) < 30:
@@ -166,16 +165,13 @@ def handeye_baseline(
     """The baseline from each pair's colour motion (flow) and depth motion (ICP) (module doc)."""
     b = float(baseline_m)
     depth_motions = [depth_motion(p.raw_a, p.raw_b, depth, T) for p, T in zip(pairs, motions)]
-    c_offset = (depth.cx - colour.cx, depth.cy - colour.cy)  # a turned depth camera (session 16); 0 otherwise
     res = HandEyeBaseline(float("nan"), (), (), float("nan"), float("nan"))
     for _ in range(rounds):
         rows = []  # (b_i, weight_i) per pair that gives both motions
         for p, T, dm in zip(pairs, motions, depth_motions):
             Tb = np.eye(4)
             Tb[0, 3] = b
-            cm = colour_motion(
-                p, colour, (depth.fx, depth.fy), b, Tb @ T @ np.linalg.inv(Tb), c_offset=c_offset
-            )
+            cm = colour_motion(p, colour, (depth.fx, depth.fy), b, Tb @ T @ np.linalg.inv(Tb))
             if cm is None or dm is None:
                 continue
             try:

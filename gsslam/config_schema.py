@@ -76,6 +76,9 @@ class EncoderConfig:
     colour_registration_flow_preset: str = "medium"  # DIS preset of the registration estimate's flow ("": flow.dis_preset; medium: ~10x less flow bias than ultrafast, session 14)
     colour_registration_flow_max_side: int = 0  # ... computed at this max image side (0: flow.max_side)
     colour_registration_given: str = "depth"  # ... and the dataset's intrinsics belong to this camera (depth | colour)
+    colour_registration_depth_rx_deg: float = 0.0  # ... and the depth camera turned against the colour one: R_colour_depth's rotation vector, x (deg; session 16)
+    colour_registration_depth_ry_deg: float = 0.0  # ... y
+    colour_registration_depth_rz_deg: float = 0.0  # ... z
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

@@ -16,7 +16,19 @@ The splat's nearest-wins rule biases a slanted surface towards the camera (-2.2 
 plane at 1.5-3 m, 320x240); a synthetic scene can ray-cast the depth camera instead (``raycast: true``,
 session 13). ``focal_scale > 1``: the depth camera sees a narrower field of view than the colour camera (the
 Kinect v1 case, 585 / 525 ~ 1.114), every depth pixel has a scene point; ``< 1`` leaves a border of
-holes. :class:`Misregistration` is the parsed form of the ``misregister`` dict of the ``playback``
+holes.
+
+A real Kinect v1's depth camera is also rotated against its colour camera (~0.45 deg about x and y, 0.16 deg
+about z in the LIRIS calibration 7-Scenes users apply) and offset off the x axis (~2 mm along z):
+``rotation_deg = [rx, ry, rz]`` is the depth camera's orientation in the colour camera frame as a rotation
+vector in degrees (``R_colour_depth = exp(rx, ry, rz)``: a colour-frame direction ``d`` is ``R^T d`` in the
+depth frame), and ``offset_m = [ty, tz]`` the rest of its centre: ``t_colour_depth = (baseline_m, ty, tz)``.
+A colour-frame point ``X`` is ``R^T (X - t)`` in the depth camera. So ``ry > 0`` turns the depth camera's
+optical axis towards +x (a point straight ahead appears at ``u < cx`` in the depth image) and ``rx > 0`` turns
+it towards -y (the point appears at ``v > cy``). Both default to zero: the images are then the same to the
+byte as without them (session 16).
+
+:class:`Misregistration` is the parsed form of the ``misregister`` dict of the ``playback``
 dataset; its ``report`` says which intrinsics the dataset hands out with the frames: ``"colour"``
 (the truth for the colour image) or ``"depth"`` (the depth camera's, as the 7-Scenes loader does with
 fx = fy = 585 for colour too); its ``ground_truth`` says which camera the dataset's ground truth poses:
@@ -32,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from gsslam.datasets.base import DatasetError
+from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics
 
 REPORTS = ("colour", "depth")
@@ -39,6 +52,10 @@ REPORTS = ("colour", "depth")
 
 def _flag(v: Any) -> bool:
     return str(v).lower() in ("true", "1", "yes")
+
+
+def _floats(v: Any) -> tuple[float, ...]:
+    return tuple(float(x) for x in v)
 
 
 class MisregistrationError(DatasetError):
@@ -54,6 +71,8 @@ class Misregistration:
     report: str = "colour"
     raycast: bool = False  # synthetic scenes only: ray-cast the depth camera instead of re-projecting
     ground_truth: str = "colour"  # the camera the ground truth poses: "colour" or "depth" (7-Scenes)
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_colour_depth's rotation vector (doc)
+    offset_m: tuple[float, float] = (0.0, 0.0)  # (y, z) of the depth camera's centre in the colour frame
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.baseline_m):
@@ -64,28 +83,36 @@ class Misregistration:
             raise MisregistrationError(f"report must be one of {REPORTS}, got {self.report!r}")
         if self.ground_truth not in REPORTS:
             raise MisregistrationError(f"ground_truth must be one of {REPORTS}, got {self.ground_truth!r}")
+        for name, n, bound in (("rotation_deg", 3, 10.0), ("offset_m", 2, 0.2)):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.shape != (n,) or not np.all(np.isfinite(v)) or np.any(np.abs(v) > bound):
+                raise MisregistrationError(
+                    f"{name} must be {n} finite numbers within +-{bound}, got {getattr(self, name)}"
+                )
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> Misregistration | None:
         if d is None:
             return None
-        unknown = set(d) - {"baseline_m", "focal_scale", "report", "raycast", "ground_truth"}
+        keys = ("baseline_m", "focal_scale", "report", "raycast", "rotation_deg", "offset_m", "ground_truth")
+        unknown = set(d) - set(keys)
         if unknown:
-            raise MisregistrationError(
-                f"unknown misregister keys {sorted(unknown)}; use baseline_m, focal_scale, report, raycast, "
-                "ground_truth"
-            )
-        conv = {"report": str, "ground_truth": str, "raycast": _flag}
+            raise MisregistrationError(f"unknown misregister keys {sorted(unknown)}; use {', '.join(keys)}")
+        conv = {
+            "report": str, "ground_truth": str, "raycast": _flag, "rotation_deg": _floats, "offset_m": _floats,
+        }  # fmt: skip
         return cls(**{k: conv.get(k, float)(v) for k, v in d.items()})
 
-    def T_colour_depth(self) -> np.ndarray:  # [4, 4] the depth camera in the colour camera frame
-        T = np.eye(4)
-        T[0, 3] = self.baseline_m
-        return T
+    def T_colour_depth(self) -> np.ndarray:  # [4, 4] the depth camera's pose in the colour camera frame
+        return depth_camera_pose(self.baseline_m, self.rotation_deg, self.offset_m)
 
     def ground_truth_poses(self, T_world_colour: np.ndarray) -> np.ndarray:  # [..., 4, 4] -> the same
         """The colour camera's true poses as the dataset's ground truth gives them (``ground_truth``)."""
         return T_world_colour @ self.T_colour_depth() if self.ground_truth == "depth" else T_world_colour
+
+    def is_along_x(self) -> bool:
+        """No rotation and no offset: the depth camera only shifted along x (the model before session 16)."""
+        return not any(self.rotation_deg) and not any(self.offset_m)
 
     def depth_intrinsics(self, colour: CameraIntrinsics) -> CameraIntrinsics:
         return CameraIntrinsics(
@@ -101,11 +128,23 @@ class Misregistration:
         return colour if self.report == "colour" else self.depth_intrinsics(colour)
 
 
+def depth_camera_pose(
+    baseline_m: float, rotation_deg=(0.0, 0.0, 0.0), offset_m=(0.0, 0.0)
+) -> np.ndarray:  # [4, 4] T_colour_depth (module docstring)
+    T = np.eye(4)
+    if any(rotation_deg):
+        T[:3, :3] = so3_exp(np.radians(np.asarray(rotation_deg, dtype=np.float64)))
+    T[:3, 3] = (baseline_m, *offset_m)
+    return T
+
+
 def misregister_depth(
     depth: np.ndarray,  # [H, W] metres, NaN invalid, registered to the colour camera
     colour: CameraIntrinsics,
     baseline_m: float,
     focal_scale: float,
+    rotation_deg=(0.0, 0.0, 0.0),  # R_colour_depth's rotation vector, degrees (module docstring)
+    offset_m=(0.0, 0.0),  # (y, z) of the depth camera's centre in the colour frame
 ) -> np.ndarray:  # [H, W] float32 metres in the virtual depth camera's pixel grid, NaN invalid
     """The depth image the virtual depth camera would see (module docstring)."""
     h, w = depth.shape
@@ -115,6 +154,12 @@ def misregister_depth(
     z = depth[vs, us].astype(np.float64)
     x = (us - colour.cx) / colour.fx * z - baseline_m  # in the depth camera's frame
     y = (vs - colour.cy) / colour.fy * z
+    if any(rotation_deg) or any(offset_m):  # X_depth = R^T (X_colour - t); along x alone the lines above
+        T = depth_camera_pose(baseline_m, rotation_deg, offset_m)
+        X = np.stack([x, y - T[1, 3], z - T[2, 3]], 1) @ T[:3, :3]  # rows: (R^T (X - t))^T
+        x, y, z = X[:, 0], X[:, 1], X[:, 2]
+        front = z > 1e-6
+        x, y, z = x[front], y[front], z[front]
     u = np.round(colour.cx + colour.fx * focal_scale * x / z, 6)  # round: exact integers stay exact
     v = np.round(colour.cy + colour.fy * focal_scale * y / z, 6)
     out = np.full(h * w, np.inf)

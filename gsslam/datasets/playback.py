@@ -22,9 +22,9 @@ by a plan of source frames:
 - ``degrade``: ``None`` or a dict ``{"shutter", "blur_samples", "exposure_amp", "exposure_period",
   "seed"}`` (see :mod:`gsslam.datasets.degraded`): motion blur along the ground-truth motion of the
   played frames (needs depth and ground truth) and auto-exposure swings, applied to the colour image.
-- ``misregister``: ``None`` or a dict ``{"baseline_m", "focal_scale", "report", "ground_truth"}`` (see
-  :mod:`gsslam.datasets.misregistered`): the depth is replaced by what an unregistered Kinect v1
-  depth camera would see, handed out at the colour pixels.
+- ``misregister``: ``None`` or a dict ``{"baseline_m", "focal_scale", "report", "rotation_deg",
+  "offset_m", "ground_truth"}`` (see :mod:`gsslam.datasets.misregistered`): the depth is replaced by what an
+  unregistered Kinect v1 depth camera would see, handed out at the colour pixels.
 
 :class:`Playback` wraps an already opened dataset the same way (``Playback(base, pattern="fb")``
 is the forward-then-backward revisit of :mod:`gsslam.datasets.revisit`).
@@ -210,7 +210,9 @@ class Playback:
         depth = f.depth
         mr = self.misregistration
         if mr is not None and depth is not None:
-            depth = misregister_depth(depth, self._colour_intrinsics, mr.baseline_m, mr.focal_scale)
+            depth = misregister_depth(
+                depth, self._colour_intrinsics, mr.baseline_m, mr.focal_scale, mr.rotation_deg, mr.offset_m
+            )
         gt = self._truth(self._gt_poses[index]) if self._gt_ok[index] else None
         return dataclasses.replace(
             f, index=index, timestamp=float(self._ts[index]), image=image, intrinsics=self.intrinsics,

@@ -38,10 +38,14 @@ from gsslam.frontend.colour_focal import (
     pair_icp,
     parabola_min,
 )
+from gsslam.frontend.depth_reprojection import reproject_depth
 from gsslam.frontend.flow import FlowEstimator
 from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
+from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
+
+__all__ = ["DepthRegistration", "IDENTITY", "register_frame", "registration_correction", "reproject_depth"]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +75,7 @@ class DepthRegistration:
     baseline_m_fixed_motion: float = float("nan")  # the fit's baseline when the joint or hand-eye one replaced it
     baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
     handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
+    depth_rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_colour_depth's rotation vector (s16)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -78,8 +83,13 @@ class DepthRegistration:
     def depth_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 if self.given == "depth" else self.ratio)
 
+    def R_colour_depth(self) -> np.ndarray | None:  # [3, 3] the depth camera's turn; None: not turned
+        if not any(self.depth_rotation_deg):
+            return None
+        return so3_exp(np.radians(np.asarray(self.depth_rotation_deg, dtype=np.float64)))
+
     def is_identity(self) -> bool:
-        return self.ratio == 1.0 and self.baseline_m == 0.0
+        return self.ratio == 1.0 and self.baseline_m == 0.0 and not any(self.depth_rotation_deg)
 
 
 IDENTITY = DepthRegistration(ok=True)
@@ -286,6 +296,8 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         "given": applied.given_by_config, "applied": not applied.is_identity(),
         "ratio_applied": float(applied.ratio), "baseline_m_applied": float(applied.baseline_m),
     }  # fmt: skip
+    if any(applied.depth_rotation_deg):
+        rec["depth_rotation_deg_applied"] = [float(x) for x in applied.depth_rotation_deg]
     if est is not None:
         rec.update({
             "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),
@@ -303,88 +315,6 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
     return rec
 
 
-def reproject_depth(
-    depth: np.ndarray,  # [H, W] metres in the depth camera's grid, NaN invalid
-    depth_intr: CameraIntrinsics,
-    colour_intr: CameraIntrinsics,
-    baseline_m: float,  # the depth camera's centre in the colour camera frame, along x
-    mean_tol: float = 0.0,  # > 0: the mean of the samples within this relative depth of the nearest
-    interp_tol: float = 0.0,  # > 0: then read the depth image at the exact pixel where its 4 neighbours agree
-) -> np.ndarray:  # [H, W] float32 metres at the colour pixels, NaN where nothing lands
-    """Depth seen from the colour camera: back-project, shift by the baseline, project, nearest wins.
-
-    A magnifying projection (colour focal longer than depth's) fills the up-to-4 pixels around each
-    projection so that no cracks open; otherwise each point lands on its nearest pixel. Where several
-    noisy samples of one surface land on a pixel (a Kinect v1's depth camera samples 1.114x finer than
-    its colour camera) the nearest is the noise's minimum, biased towards the camera; ``mean_tol`` > 0
-    averages the samples within ``mean_tol * z`` of the nearest instead (the nearest surface still wins).
-    Each sample lands on the nearest pixel, up to half a pixel from where it projects; ``interp_tol`` > 0
-    then reads the depth image bilinearly at the exact depth pixel of each colour pixel (its ray shifted by
-    the baseline at the z-buffer's depth), where the 4 depth pixels lie within ``interp_tol * z`` of it.
-    """
-    h, w = depth.shape
-    vs, us = np.nonzero(np.isfinite(depth) & (depth > 0))
-    z = depth[vs, us].astype(np.float64)
-    x = (us - depth_intr.cx) / depth_intr.fx * z + baseline_m
-    y = (vs - depth_intr.cy) / depth_intr.fy * z
-    u = colour_intr.cx + colour_intr.fx * x / z
-    v = colour_intr.cy + colour_intr.fy * y / z
-    if colour_intr.fx > depth_intr.fx * 1.0001:
-        cands = [
-            (np.floor(u), np.floor(v)),
-            (np.floor(u), np.ceil(v)),
-            (np.ceil(u), np.floor(v)),
-            (np.ceil(u), np.ceil(v)),
-        ]
-    else:
-        cands = [(np.rint(u), np.rint(v))]
-    out = np.full(h * w, np.inf)
-    hits = []
-    for uu, vv in cands:
-        ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-        hits.append(((vv[ok] * w + uu[ok]).astype(np.int64), z[ok]))
-        np.minimum.at(out, *hits[-1])
-    if mean_tol > 0:
-        idx = np.concatenate([i for i, _ in hits])
-        zz = np.concatenate([q for _, q in hits])
-        near = zz <= out[idx] * (1.0 + mean_tol)  # the nearest surface's samples
-        tot = np.bincount(idx[near], zz[near], h * w)
-        cnt = np.bincount(idx[near], None, h * w)
-        out = np.where(cnt > 0, tot / np.maximum(cnt, 1), out)
-    out[~np.isfinite(out)] = np.nan
-    out = out.reshape(h, w)
-    if interp_tol > 0:
-        out = _interpolate_at_colour_pixels(out, depth, depth_intr, colour_intr, baseline_m, interp_tol)
-    return out.astype(np.float32)
-
-
-def _interpolate_at_colour_pixels(
-    z_col: np.ndarray,  # [H, W] the z-buffer's depth at the colour pixels, NaN none
-    depth: np.ndarray,  # [H, W] the depth image (depth camera grid)
-    depth_intr: CameraIntrinsics,
-    colour_intr: CameraIntrinsics,
-    baseline_m: float,
-    tol: float,
-) -> np.ndarray:  # [H, W] float64
-    h, w = z_col.shape
-    vs, us = np.nonzero(np.isfinite(z_col))
-    z = z_col[vs, us]
-    ud = depth_intr.cx + depth_intr.fx * ((us - colour_intr.cx) / colour_intr.fx - baseline_m / z)
-    vd = depth_intr.cy + depth_intr.fy * (vs - colour_intr.cy) / colour_intr.fy
-    u0, v0 = np.floor(ud).astype(np.int64), np.floor(vd).astype(np.int64)
-    inside = (u0 >= 0) & (u0 + 1 < w) & (v0 >= 0) & (v0 + 1 < h)
-    vs, us, z, ud, vd, u0, v0 = (a[inside] for a in (vs, us, z, ud, vd, u0, v0))
-    fu, fv = ud - u0, vd - v0
-    d = np.nan_to_num(np.asarray(depth, np.float64), nan=-1.0)
-    q = [d[v0, u0], d[v0, u0 + 1], d[v0 + 1, u0], d[v0 + 1, u0 + 1]]
-    wts = [(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv]
-    agree = np.all([np.abs(x - z) <= tol * z for x in q], axis=0)
-    val = sum(wt * x for wt, x in zip(wts, q))
-    out = z_col.copy()
-    out[vs[agree], us[agree]] = val[agree]
-    return out
-
-
 def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     """``frame`` (with the dataset's intrinsics) with the colour intrinsics and depth in the colour grid."""
     if reg.is_identity():
@@ -394,6 +324,6 @@ def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
     if depth is not None:
         depth = reproject_depth(
             depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m,
-            reg.depth_mean_tol, reg.depth_interp_tol,
+            reg.depth_mean_tol, reg.depth_interp_tol, reg.R_colour_depth(),
         )  # fmt: skip
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

@@ -320,10 +320,14 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if cfg.mode == "rgbd" and enc.colour_registration_ratio > 0:  # given: no estimate
         reg = DepthRegistration(
             enc.colour_registration_ratio, enc.colour_registration_baseline_m, enc.colour_registration_given,
-            ok=True, given_by_config=True,
+            ok=True, given_by_config=True, depth_rotation_deg=(
+                enc.colour_registration_depth_rx_deg, enc.colour_registration_depth_ry_deg,
+                enc.colour_registration_depth_rz_deg,
+            ),
         )  # fmt: skip
-        log.info("depth-to-colour registration given: k %.4f, baseline %.1f mm, intrinsics of the %s camera",
-                 reg.ratio, 1000 * reg.baseline_m, reg.given)  # fmt: skip
+        log.info("depth-to-colour registration given: k %.4f, baseline %.1f mm, intrinsics of the %s camera, "
+                 "depth camera turned %s deg", reg.ratio, 1000 * reg.baseline_m, reg.given,
+                 reg.depth_rotation_deg)  # fmt: skip
         return reg, None
     if cfg.mode != "rgbd" or not enc.colour_focal_auto:
         return IDENTITY, None

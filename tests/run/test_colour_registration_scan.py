@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from gsslam.config import load_config
@@ -49,3 +50,16 @@ def test_registration_read_further_when_the_start_is_still(still_then_moving, ca
     assert not reg.is_identity() and est.ok, est
     # measured k 1.109, baseline 25.1 mm from the second window (12 pairs); the first: 0 pairs
     assert abs(est.ratio / KINECT_RATIO - 1) < 0.02 and abs(est.baseline_m - BASELINE_M) < 0.006, est
+
+
+def test_given_registration_carries_the_depth_camera_turn():
+    """``encoder.colour_registration_depth_r{x,y,z}_deg`` (session 16) reach the applied registration."""
+    cfg = load_config(None, [
+        "encoder.colour_registration_ratio=1.114", "encoder.colour_registration_baseline_m=0.025",
+        "encoder.colour_registration_depth_rx_deg=0.5", "encoder.colour_registration_depth_rz_deg=-0.2",
+    ], mode="rgbd")  # fmt: skip
+    reg, est = colour_registration(None, cfg, None)
+    assert est is None and reg.given_by_config and reg.depth_rotation_deg == (0.5, 0.0, -0.2)
+    R = reg.R_colour_depth()
+    assert R[2, 1] == pytest.approx(np.radians(0.5), rel=1e-3)
+    assert R[1, 0] == pytest.approx(np.radians(-0.2), rel=1e-3)

@@ -22,9 +22,10 @@ synthetic room"):
   depth noise ~ z^2, disparity quantization, holes (range, grazing angles, depth edges), drawn from
   ``seed`` and the frame index, in the depth camera's grid.
 - ``misregister``: a dict as the ``playback`` dataset's (:mod:`gsslam.datasets.misregistered`): the
-  exact depth is first re-rendered into a depth camera ``baseline_m`` beside the colour camera with
-  focal lengths ``focal_scale`` times longer, handed out at the colour pixels; ``report: depth`` hands
-  out the depth camera's intrinsics for colour too (as 7-Scenes does; then ``focal_scale`` must be 1).
+  exact depth is first re-rendered into a depth camera ``baseline_m`` beside the colour camera (turned
+  by ``rotation_deg``, offset by ``offset_m``) with focal lengths ``focal_scale`` times longer, handed
+  out at the colour pixels; ``report: depth`` hands out the depth camera's intrinsics for colour too
+  (as 7-Scenes does; then ``focal_scale`` must be 1).
 - ``degrade``: a dict as the ``playback`` dataset's (:mod:`gsslam.datasets.degraded`): motion blur
   along the exact motion to the neighbouring frames (from the exact depth) and exposure swings.
 """
@@ -219,12 +220,13 @@ class SyntheticDataset:
         depth_intr = self.true_intrinsics
         if mr is not None:
             depth_intr = mr.depth_intrinsics(self.true_intrinsics)
-            if mr.raycast:  # the depth camera itself, at x = baseline_m in the colour camera
-                T_cam_depth = np.eye(4)
-                T_cam_depth[0, 3] = mr.baseline_m
+            if mr.raycast:  # the depth camera itself, at its pose in the colour camera (x = baseline_m ...)
+                T_cam_depth = mr.T_colour_depth()
                 depth = self.scene.cast(self._poses[index] @ T_cam_depth, depth_intr)[1].astype(np.float32)
             else:
-                depth = misregister_depth(depth, self.true_intrinsics, mr.baseline_m, mr.focal_scale)
+                depth = misregister_depth(
+                    depth, self.true_intrinsics, mr.baseline_m, mr.focal_scale, mr.rotation_deg, mr.offset_m
+                )
         if self.sensor is not None:
             rng = np.random.default_rng([self.seed, index, 1])
             depth = kinect_v1_depth(depth, depth_intr, self.sensor, rng)

@@ -1,0 +1,61 @@
+"""Colour and depth taken at different times (session 16): per run of synthetic batches with ``depth_delay_s``,
+the ATE as metrics.json has it (trajectory.tum, the depth camera, against the ground truth: the depth camera at
+the depth image's time, as 7-Scenes), the same trajectory against the depth camera at the colour image's time
+(the truth without the delay: what tracking itself got wrong), the colour camera's trajectory against the
+colour camera's truth, RPE, Sim(3) scale and the registration estimate (metrics.json ``colour_focal``).
+
+    PYTHONPATH=. python3 tests/accuracy/tsync_report_s16.py OUT [OUT ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from gsslam.datasets.synthetic import SyntheticDataset
+from gsslam.eval.ate import compute_ate
+from gsslam.io.trajectory import read_tum
+from gsslam.types import Trajectory
+
+
+def ate_cm(gt: Trajectory, path: Path) -> float:
+    return 100 * compute_ate(gt, read_tum(path), align="se3")[0].stats.rmse
+
+
+def truth_without_delay(kwargs: dict, camera: str) -> Trajectory:
+    mis = {**kwargs["misregister"], "ground_truth": camera}
+    return SyntheticDataset(**{**kwargs, "misregister": mis, "depth_delay_s": 0.0}).ground_truth()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("outs", type=Path, nargs="+")
+    a = ap.parse_args()
+    print("| run | delay ms | frames | ATE cm (metrics) | vs depth cam at colour time | colour vs colour truth | "
+          "RPE cm / deg | Sim3 scale | k | b mm (hand-eye chi2) | loops |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for out in a.outs:
+        for row in json.loads((out / "results.json").read_text())["rows"]:
+            if row["status"] != "ok":
+                print(f"| {row['run_id']} | {row['status']} {row.get('error')} |")
+                continue
+            run = Path(row["run_dir"])
+            m = json.loads((run / "metrics.json").read_text())
+            kw = row["kwargs"]
+            cf = m.get("colour_focal") or {}
+            colour = run / "trajectory_colour.tum"
+            colour = colour if colour.is_file() else run / "trajectory.tum"
+            print(
+                f"| {row['sequence']} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {row['frames_posed']} | "
+                f"{100 * row['ate_m']:.3f} | {ate_cm(truth_without_delay(kw, 'depth'), run / 'trajectory.tum'):.3f} | "
+                f"{ate_cm(truth_without_delay(kw, 'colour'), colour):.3f} | "
+                f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f} | {row['sim3_scale']:.4f} | "
+                f"{cf.get('ratio_applied', float('nan')):.4f} | {1000 * cf.get('baseline_m_applied', float('nan')):.1f} "
+                f"({cf.get('handeye_median_chi2', float('nan')):.1f}) | "
+                f"{row['loops_accepted']}/{row['loops_detected']} |"
+            )  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -13,6 +13,8 @@ import argparse
 import json
 from pathlib import Path
 
+import yaml
+
 from gsslam.datasets.synthetic import SyntheticDataset
 from gsslam.eval.ate import compute_ate
 from gsslam.io.trajectory import read_tum
@@ -36,26 +38,28 @@ def main() -> None:
           "RPE cm / deg | Sim3 scale | k | b mm (hand-eye chi2) | loops |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for out in a.outs:
-        for row in json.loads((out / "results.json").read_text())["rows"]:
-            if row["status"] != "ok":
-                print(f"| {row['run_id']} | {row['status']} {row.get('error')} |")
+        rows = json.loads((out / "results.json").read_text())["rows"] if (out / "results.json").is_file() else []
+        by_run = {r["run_id"]: r for r in rows}
+        for run in sorted((out / "runs").iterdir()):
+            m = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").is_file() else {}
+            if m.get("status") != "complete":
+                print(f"| {run.name} | {m.get('status', 'not run')} |")
                 continue
-            run = Path(row["run_dir"])
-            m = json.loads((run / "metrics.json").read_text())
-            kw = row["kwargs"]
+            row = by_run.get(run.name, {})  # RPE, Sim(3) scale: the batch's table (written when it ends)
+            kw = yaml.safe_load((run / "synthetic.yaml").read_text())
             cf = m.get("colour_focal") or {}
+            lc = m.get("loop_closure") or {}
             colour = run / "trajectory_colour.tum"
             colour = colour if colour.is_file() else run / "trajectory.tum"
+            rpe = f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f}" if row else "-"
+            scale = f"{row['sim3_scale']:.4f}" if row else "-"
             print(
-                f"| {row['sequence']} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {row['frames_posed']} | "
-                f"{100 * row['ate_m']:.3f} | {ate_cm(truth_without_delay(kw, 'depth'), run / 'trajectory.tum'):.3f} | "
-                f"{ate_cm(truth_without_delay(kw, 'colour'), colour):.3f} | "
-                f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f} | {row['sim3_scale']:.4f} | "
+                f"| {run.name} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {m['frames_posed']} | "
+                f"{100 * m['ate']['rmse_m']:.3f} | {ate_cm(truth_without_delay(kw, 'depth'), run / 'trajectory.tum'):.3f} | "
+                f"{ate_cm(truth_without_delay(kw, 'colour'), colour):.3f} | {rpe} | {scale} | "
                 f"{cf.get('ratio_applied', float('nan')):.4f} | {1000 * cf.get('baseline_m_applied', float('nan')):.1f} "
-                f"({cf.get('handeye_median_chi2', float('nan')):.1f}) | "
-                f"{row['loops_accepted']}/{row['loops_detected']} |"
+                f"({cf.get('handeye_median_chi2', float('nan')):.1f}) | {lc.get('accepted')}/{lc.get('detected')} |"
             )  # fmt: skip
-
 
 if __name__ == "__main__":
     main()

@@ -1,8 +1,9 @@
-"""Colour and depth taken at different times (session 16): per run of synthetic batches with ``depth_delay_s``,
-the ATE as metrics.json has it (trajectory.tum, the depth camera, against the ground truth: the depth camera at
-the depth image's time, as 7-Scenes), the same trajectory against the depth camera at the colour image's time
-(the truth without the delay: what tracking itself got wrong), the colour camera's trajectory against the
-colour camera's truth, RPE, Sim(3) scale and the registration estimate (metrics.json ``colour_focal``).
+"""Colour and depth taken at different times (session 16): per run of synthetic batches with
+``depth_delay_s``, the ATE as metrics.json has it (trajectory.tum, the depth camera, against the ground truth:
+the depth camera at the depth image's time, as 7-Scenes), the same trajectory against the depth camera at the
+colour image's time (the truth without the delay: what tracking itself got wrong), the colour camera's
+trajectory against the colour camera's truth, RPE, Sim(3) scale and the registration estimate (metrics.json
+``colour_focal``).
 
     PYTHONPATH=. python3 tests/accuracy/tsync_report_s16.py OUT [OUT ...]
 """
@@ -34,18 +35,21 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("outs", type=Path, nargs="+")
     a = ap.parse_args()
-    print("| run | delay ms | frames | ATE cm (metrics) | vs depth cam at colour time | colour vs colour truth | "
-          "RPE cm / deg | Sim3 scale | k | b mm (hand-eye chi2) | loops |")  # fmt: skip
+    print(
+        "| run | delay ms | frames | ATE cm (metrics) | vs depth cam at colour time | colour vs colour truth "
+        "| RPE cm / deg | Sim3 scale | k | b mm (hand-eye chi2) | loops |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for out in a.outs:
-        rows = json.loads((out / "results.json").read_text())["rows"] if (out / "results.json").is_file() else []
+        table = out / "results.json"
+        rows = json.loads(table.read_text())["rows"] if table.is_file() else []
         by_run = {r["run_id"]: r for r in rows}
         for run in sorted((out / "runs").iterdir()):
             m = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").is_file() else {}
             if m.get("status") != "complete":
                 print(f"| {run.name} | {m.get('status', 'not run')} |")
                 continue
-            row = by_run.get(run.name, {})  # RPE, Sim(3) scale: the batch's table (written when it ends)
+            row = by_run.get(run.name, {})  # RPE, Sim(3) scale: the batch's table (written at its end)
             kw = yaml.safe_load((run / "synthetic.yaml").read_text())
             cf = m.get("colour_focal") or {}
             lc = m.get("loop_closure") or {}
@@ -53,13 +57,18 @@ def main() -> None:
             colour = colour if colour.is_file() else run / "trajectory.tum"
             rpe = f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f}" if row else "-"
             scale = f"{row['sim3_scale']:.4f}" if row else "-"
+            at_colour_time = ate_cm(truth_without_delay(kw, "depth"), run / "trajectory.tum")
+            colour_own = ate_cm(truth_without_delay(kw, "colour"), colour)
+            nan = float("nan")
+            reg = f"{cf.get('ratio_applied', nan):.4f} | {1000 * cf.get('baseline_m_applied', nan):.1f}"
+            delay_ms = 1000 * float(kw.get("depth_delay_s", 0.0))
+            chi2 = cf.get("handeye_median_chi2", nan)
             print(
-                f"| {run.name} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {m['frames_posed']} | "
-                f"{100 * m['ate']['rmse_m']:.3f} | {ate_cm(truth_without_delay(kw, 'depth'), run / 'trajectory.tum'):.3f} | "
-                f"{ate_cm(truth_without_delay(kw, 'colour'), colour):.3f} | {rpe} | {scale} | "
-                f"{cf.get('ratio_applied', float('nan')):.4f} | {1000 * cf.get('baseline_m_applied', float('nan')):.1f} "
-                f"({cf.get('handeye_median_chi2', float('nan')):.1f}) | {lc.get('accepted')}/{lc.get('detected')} |"
-            )  # fmt: skip
+                f"| {run.name} | {delay_ms:g} | {m['frames_posed']} | {100 * m['ate']['rmse_m']:.3f} | "
+                f"{at_colour_time:.3f} | {colour_own:.3f} | {rpe} | {scale} | {reg} ({chi2:.1f}) | "
+                f"{lc.get('accepted')}/{lc.get('detected')} |"
+            )
+
 
 if __name__ == "__main__":
     main()

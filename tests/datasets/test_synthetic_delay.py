@@ -38,7 +38,7 @@ def test_a_whole_frame_late_depth_is_the_next_frames_depth():
         moved = np.isfinite(now[k].depth) & both
         assert np.median(np.abs(now[k].depth[moved] - d_late[moved])) > 1e-4  # the camera did move
     T = SyntheticDataset(**KW)._poses
-    ext = delayed_poses(T, 1.0)[-1]  # past the end: the last step once more (world translation, body rotation)
+    ext = delayed_poses(T, 1.0)[-1]  # past the end: the last step once more (translation in the world)
     np.testing.assert_allclose(ext[:3, 3], 2 * T[-1][:3, 3] - T[-2][:3, 3], atol=1e-12)
     np.testing.assert_allclose(T[-1][:3, :3].T @ ext[:3, :3], T[-2][:3, :3].T @ T[-1][:3, :3], atol=1e-9)
 

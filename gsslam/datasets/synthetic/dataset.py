@@ -163,7 +163,8 @@ class SyntheticDataset:
         self.depth_delay_s = float(params["depth_delay_s"])
         if not (np.isfinite(self.depth_delay_s) and abs(self.depth_delay_s) * self.fps <= 1.0):
             raise SyntheticDatasetError(
-                f"depth_delay_s must be within one frame (|delay| <= {1.0 / self.fps:.4f} s), got {self.depth_delay_s}"
+                f"depth_delay_s must be within one frame (|delay| <= {1.0 / self.fps:.4f} s), "
+                f"got {self.depth_delay_s}"
             )
         self.scene = PRESETS[params["scene"]](seed=self.seed)
         self._poses = TRAJECTORIES[self.trajectory](

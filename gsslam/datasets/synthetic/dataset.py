@@ -28,6 +28,13 @@ synthetic room"):
   (as 7-Scenes does; then ``focal_scale`` must be 1).
 - ``degrade``: a dict as the ``playback`` dataset's (:mod:`gsslam.datasets.degraded`): motion blur
   along the exact motion to the neighbouring frames (from the exact depth) and exposure swings.
+- ``depth_delay_s`` (default 0: colour and depth at one pose): the depth image is taken this many
+  seconds after the colour image (negative: before), as a Kinect v1's unsynchronised streams are
+  (up to half a frame, ~16 ms, either way): it is rendered at the pose interpolated at ``t + delay``
+  (:func:`~gsslam.geometry.interpolate_pose` between the path's neighbouring poses, extrapolated at the
+  ends). The ground truth poses its camera at that camera's time: the colour camera at ``t``, or with
+  ``misregister: {ground_truth: depth}`` the depth camera at ``t + delay`` (7-Scenes' KinectFusion poses
+  are the depth images'). ``timestamps()`` stay the colour images'.
 """
 
 from __future__ import annotations
@@ -44,6 +51,7 @@ from gsslam.datasets.misregistered import Misregistration, misregister_depth
 from gsslam.datasets.synthetic.presets import PRESETS
 from gsslam.datasets.synthetic.scene import SceneError
 from gsslam.datasets.synthetic.trajectories import orbit, room_walk, sway_line
+from gsslam.geometry import interpolate_pose
 from gsslam.types import CameraIntrinsics, Frame, Trajectory
 
 # name -> (n_frames, arc_deg, motion_scale, seed) -> T_world_cam [N, 4, 4]; add a path here to offer it
@@ -67,6 +75,7 @@ _PARAMS = (
     "sensor",
     "misregister",
     "degrade",
+    "depth_delay_s",
 )
 
 
@@ -96,6 +105,7 @@ class SyntheticDataset:
         sensor: str | dict[str, Any] | None = None,
         misregister: dict[str, Any] | None = None,
         degrade: dict[str, Any] | None = None,
+        depth_delay_s: float = 0.0,
     ) -> None:
         params: dict[str, Any] = dict(
             n_frames=n_frames,
@@ -111,6 +121,7 @@ class SyntheticDataset:
             sensor=sensor,
             misregister=misregister,
             degrade=degrade,
+            depth_delay_s=depth_delay_s,
         )
         if path is not None:
             params.update(self._read_params(Path(path)))
@@ -150,10 +161,18 @@ class SyntheticDataset:
                 self.intrinsics = self.misregistration.depth_intrinsics(self.true_intrinsics)
         # handed out with another camera's focal (the 7-Scenes hand-out): nominal, as the 7-Scenes loader says
         self.intrinsics_nominal = self.intrinsics != self.true_intrinsics
+        self.depth_delay_s = float(params["depth_delay_s"])
+        if not (np.isfinite(self.depth_delay_s) and abs(self.depth_delay_s) * self.fps <= 1.0):
+            raise SyntheticDatasetError(
+                f"depth_delay_s must be within one frame (|delay| <= {1.0 / self.fps:.4f} s), "
+                f"got {self.depth_delay_s}"
+            )
         self.scene = PRESETS[params["scene"]](seed=self.seed)
         self._poses = TRAJECTORIES[self.trajectory](
             self.n_frames, float(params["arc_deg"]), self.motion_scale, self.seed
         )
+        # the colour camera's poses when each depth image is taken (the colour poses themselves: no delay)
+        self._depth_time_poses = delayed_poses(self._poses, self.depth_delay_s * self.fps)
 
     @staticmethod
     def _read_params(path: Path) -> dict:
@@ -183,12 +202,14 @@ class SyntheticDataset:
     def ground_truth_camera(self) -> str:  # the camera ground_truth() poses (misregister.ground_truth)
         return "colour" if self.misregistration is None else self.misregistration.ground_truth
 
-    def _truth(self, poses: np.ndarray) -> np.ndarray:  # colour camera poses as the ground truth gives them
+    def _truth(self, index: int | slice) -> np.ndarray:  # the ground truth's poses, each at its camera's time
         mr = self.misregistration
-        return poses.copy() if mr is None else mr.ground_truth_poses(poses)
+        if mr is None or mr.ground_truth == "colour":
+            return self._poses[index].copy()
+        return mr.ground_truth_poses(self._depth_time_poses[index])
 
     def ground_truth(self) -> Trajectory:
-        return Trajectory(np.asarray(self.timestamps()), self._truth(self._poses))
+        return Trajectory(np.asarray(self.timestamps()), self._truth(slice(None)))
 
     def __getitem__(self, index: int) -> Frame:
         if not -self.n_frames <= index < self.n_frames:
@@ -202,7 +223,7 @@ class SyntheticDataset:
             image=image,
             intrinsics=self.intrinsics,
             depth=depth,
-            T_world_cam_gt=self._truth(self._poses[index]),
+            T_world_cam_gt=self._truth(index),
         )
 
     def _as_captured(
@@ -218,11 +239,14 @@ class SyntheticDataset:
                 image = motion_blur(image, depth, self.true_intrinsics, ends, deg.blur_samples)
             image = apply_exposure(image, deg.gain(index))
         depth_intr = self.true_intrinsics
+        T_world_at_depth = self._depth_time_poses[index]  # the colour camera when the depth is taken
+        if self.depth_delay_s != 0.0:
+            depth = self.render(T_world_at_depth)[1]
         if mr is not None:
             depth_intr = mr.depth_intrinsics(self.true_intrinsics)
             if mr.raycast:  # the depth camera itself, at its pose in the colour camera (x = baseline_m ...)
                 T_cam_depth = mr.T_colour_depth()
-                depth = self.scene.cast(self._poses[index] @ T_cam_depth, depth_intr)[1].astype(np.float32)
+                depth = self.scene.cast(T_world_at_depth @ T_cam_depth, depth_intr)[1].astype(np.float32)
             else:
                 depth = misregister_depth(
                     depth, self.true_intrinsics, mr.baseline_m, mr.focal_scale, mr.rotation_deg, mr.offset_m
@@ -236,3 +260,18 @@ class SyntheticDataset:
         """Ray-cast the scene from ``T_world_cam`` [4, 4] -> (image [H, W, 3], depth [H, W] float32)."""
         image, depth = self.scene.cast(T_world_cam, self.true_intrinsics)
         return image, depth.astype(np.float32)
+
+
+def delayed_poses(poses: np.ndarray, shift_frames: float) -> np.ndarray:  # [N, 4, 4], frames -> [N, 4, 4]
+    """The poses ``shift_frames`` frames later along the path (``poses`` itself when 0): each between the
+    two poses around ``k + shift`` (:func:`~gsslam.geometry.interpolate_pose`), the first / last pair's
+    motion extrapolated past the ends."""
+    n = len(poses)
+    if shift_frames == 0.0 or n < 2:
+        return poses
+    out = np.empty_like(poses)
+    for k in range(n):
+        f = k + shift_frames
+        i = int(min(max(np.floor(f), 0), n - 2))
+        out[k] = interpolate_pose(poses[i], poses[i + 1], f - i)
+    return out

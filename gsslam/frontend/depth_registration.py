@@ -88,6 +88,14 @@ class DepthRegistration:
             return None
         return so3_exp(np.radians(np.asarray(self.depth_rotation_deg, dtype=np.float64)))
 
+    def T_colour_depth(self) -> np.ndarray:  # [4, 4] the depth camera's pose in the colour camera frame
+        T = np.eye(4)
+        R = self.R_colour_depth()
+        if R is not None:
+            T[:3, :3] = R
+        T[0, 3] = self.baseline_m
+        return T
+
     def is_identity(self) -> bool:
         return self.ratio == 1.0 and self.baseline_m == 0.0 and not any(self.depth_rotation_deg)
 

@@ -232,7 +232,7 @@ def run_dataset(
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
         camera = trajectory_camera(  # the camera trajectory.tum is (7-Scenes' ground truth: the depth one)
-            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.baseline_m
+            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.T_colour_depth()
         )
         pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))
         if imu_stage is not None:

@@ -17,7 +17,7 @@ and revisited from new directions it is ~2 cm RMS after SE(3) alignment, more th
 - ``"depth"``: the depth camera.
 
 The depth camera's pose is ``T_world_colour @ T_colour_depth``, ``T_colour_depth`` from the run's applied
-depth-to-colour registration (a translation of the baseline along x; see
+depth-to-colour registration (the baseline along x, and the depth camera's turn where one is given; see
 :mod:`gsslam.frontend.depth_registration`). Without one (registered depth, or a mono run, which has no
 metric baseline) the two cameras are one and ``trajectory.tum`` is the colour camera's. When the written
 camera is not the colour camera, the colour camera's poses are written beside it (``trajectory_colour.tum``,
@@ -71,28 +71,27 @@ def ground_truth_camera(ds) -> str:
     return cam if cam in ("colour", "depth") else "colour"
 
 
-def trajectory_camera(choice: str, ds, baseline_m: float | None) -> TrajectoryCamera:
-    """The camera to write (``run.trajectory_camera``); ``baseline_m``: the applied registration's depth
-    camera centre in the colour frame along x, ``None`` without a registration (registered depth, mono)."""
+def trajectory_camera(choice: str, ds, T_colour_depth: np.ndarray | None) -> TrajectoryCamera:
+    """The camera to write (``run.trajectory_camera``); ``T_colour_depth``: the applied registration's depth
+    camera in the colour frame (``DepthRegistration.T_colour_depth``), ``None`` without a registration
+    (registered depth, mono)."""
     if choice not in CAMERAS:
         raise ValueError(f"run.trajectory_camera must be one of {CAMERAS}, got {choice!r}")
     name = ground_truth_camera(ds) if choice == "ground_truth" else choice
     if name == "colour":
         return COLOUR
-    if baseline_m is None:
+    if T_colour_depth is None:
         log.warning(
             "the ground truth is the depth camera's, but this run has no depth-to-colour registration "
             "(mono, or depth taken as registered): trajectory.tum is the colour camera's, and its ATE "
             "includes the lever arm between the two cameras (~2.5 cm on a Kinect v1)"
         )
         return TrajectoryCamera("colour")
-    T = np.eye(4)
-    T[0, 3] = baseline_m
     log.info(
         "trajectory.tum is the depth camera's (%.1f mm beside the colour camera along x), as the "
-        "dataset's ground truth; the colour camera's is in trajectory_colour.tum", 1000 * baseline_m,
+        "dataset's ground truth; the colour camera's is in trajectory_colour.tum", 1000 * T_colour_depth[0, 3],
     )  # fmt: skip
-    return TrajectoryCamera("depth", T)
+    return TrajectoryCamera("depth", np.array(T_colour_depth, dtype=np.float64))
 
 
 def image_poses_file(run_dir: Path, stem: str) -> Path:

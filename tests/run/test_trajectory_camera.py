@@ -20,6 +20,12 @@ class _Data:  # a dataset as trajectory_camera sees it
             self.ground_truth_camera = camera
 
 
+def _beside(b: float) -> np.ndarray:  # a depth camera b metres along the colour camera's x
+    T = np.eye(4)
+    T[0, 3] = b
+    return T
+
+
 def _turning_walk(n: int = 200) -> np.ndarray:  # [n, 4, 4] colour camera: a 2 m circle, one full turn in yaw
     a = np.linspace(0, 2 * np.pi, n, endpoint=False)
     return np.stack([make_T(so3_exp(np.array([0.0, t + 0.3 * np.sin(3 * t), 0.0])),
@@ -27,15 +33,15 @@ def _turning_walk(n: int = 200) -> np.ndarray:  # [n, 4, 4] colour camera: a 2 m
 
 
 def test_choice():
-    assert trajectory_camera("ground_truth", _Data(None), 0.025) is COLOUR  # a dataset that says nothing
-    assert trajectory_camera("ground_truth", _Data("colour"), 0.025) is COLOUR
-    cam = trajectory_camera("ground_truth", _Data("depth"), 0.025)
+    assert trajectory_camera("ground_truth", _Data(None), _beside(0.025)) is COLOUR  # says nothing
+    assert trajectory_camera("ground_truth", _Data("colour"), _beside(0.025)) is COLOUR
+    cam = trajectory_camera("ground_truth", _Data("depth"), _beside(0.025))
     assert cam.name == "depth" and not cam.is_colour
     np.testing.assert_allclose(cam.T_colour_cam[:3, 3], [0.025, 0, 0])
-    assert trajectory_camera("colour", _Data("depth"), 0.025) is COLOUR
-    assert trajectory_camera("depth", _Data(None), -0.02).T_colour_cam[0, 3] == -0.02
+    assert trajectory_camera("colour", _Data("depth"), _beside(0.025)) is COLOUR
+    assert trajectory_camera("depth", _Data(None), _beside(-0.02)).T_colour_cam[0, 3] == -0.02
     with pytest.raises(ValueError, match="trajectory_camera"):
-        trajectory_camera("ir", _Data(None), 0.025)
+        trajectory_camera("ir", _Data(None), _beside(0.025))
 
 
 def test_without_a_registration_the_colour_camera_is_written_with_a_warning(caplog):
@@ -49,7 +55,7 @@ def test_the_lever_arm_is_error_a_turning_walk_cannot_align_away():
     leave ~the whole lever arm as ATE after SE(3) alignment; moved to the depth camera it is exact."""
     colour = _turning_walk()
     t = np.arange(len(colour)) / 30.0
-    cam = trajectory_camera("ground_truth", _Data("depth"), 0.025)
+    cam = trajectory_camera("ground_truth", _Data("depth"), _beside(0.025))
     gt = Trajectory(t, colour @ cam.T_colour_cam)
     as_colour, _ = compute_ate(gt, Trajectory(t, colour), align="se3")
     as_depth, _ = compute_ate(gt, Trajectory(t, np.stack(list(cam.apply(dict(enumerate(colour))).values()))),

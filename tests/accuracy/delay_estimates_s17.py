@@ -3,7 +3,7 @@ Not a test: a measuring tool (docs/results.md, "The colour-depth delay estimated
 session 17").
 
     PYTHONPATH=. python3 tests/accuracy/delay_estimates_s17.py ROW [ROW ...] [--delays-ms -16,-8,0,8,16] \
-        [--starts 0,200] [--frames 120] [--prefixes 40,80]
+        [--starts 0,200] [--frames 120] [--prefixes 40,80] [--registration 1.114,0.025]
 
 Each stretch: the registration as a run estimates it (its first 40 frames), then the delay from the rotation
 rates of pairs (k, k + 2) over the stretch, fitted on the first 40 / 80 / all frames' pairs.
@@ -25,7 +25,7 @@ from gsslam.config import FlowConfig
 from gsslam.datasets import open_dataset
 from gsslam.datasets.synthetic import SyntheticDataset
 from gsslam.frontend.colour_focal import flow_pairs
-from gsslam.frontend.depth_registration import registration_correction
+from gsslam.frontend.depth_registration import DepthRegistration, registration_correction
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.registration_delay import GAP, fit_delay, frame_interval, rotation_series
 
@@ -67,6 +67,7 @@ def main() -> None:
     ap.add_argument("--starts", default="0,200")
     ap.add_argument("--frames", type=int, default=120, help="the stretch the delay is estimated over")
     ap.add_argument("--prefixes", default="40,80", help="also fitted on the pairs of the first N frames")
+    ap.add_argument("--registration", default="", help="k,b_m given (the truth: 1.114,0.025)")
     a = ap.parse_args()
     flow = make_flow_estimator(FlowConfig(dis_preset="medium", max_side=320))
     for row in a.rows or list(ROWS):
@@ -79,6 +80,11 @@ def main() -> None:
                 intr = frames[0].intrinsics
                 if row == "tum":  # registered: k 1, b 0
                     reg, col, dep, b = "registered (k 1, b 0)", intr, intr, 0.0
+                elif a.registration:  # given
+                    k_, b = (float(x) for x in a.registration.split(","))
+                    given = DepthRegistration(k_, b, "depth")
+                    reg = f"given k {k_:.4f} b {1000 * b:.1f} mm"
+                    col, dep = given.colour_intrinsics(intr), given.depth_intrinsics(intr)
                 else:  # the registration as a run estimates it (first 40 frames of the stretch)
                     _, est = registration_correction(frames[:40], flow, 0.02, 0.01, 0.15, 2, handeye=True)
                     reg = f"k {est.ratio:.4f} b {1000 * est.baseline_m:.1f} mm"

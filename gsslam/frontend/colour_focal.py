@@ -63,6 +63,8 @@ class FlowPair:
     raw_a: np.ndarray  # [H, W] float32 metres, frame a's depth as given (for ICP at other intrinsics)
     raw_b: np.ndarray  # [H, W] float32 metres, frame b's
     T_b_a: np.ndarray  # [4, 4] ICP motion (depth camera) at the given intrinsics
+    index_a: int = -1  # frame a's position in the frames the pairs came from (-1: not known)
+    index_b: int = -1  # frame b's
 
 
 def pair_icp(
@@ -74,11 +76,11 @@ def pair_icp(
 
 
 def _pair(
-    fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int
+    fa: Frame, fb: Frame, flow: FlowEstimator, rng: np.random.Generator, max_points: int, refused_ok: bool
 ) -> FlowPair | None:
     intr = fa.intrinsics
     icp = icp_point_to_plane(fa.depth, fb.depth, intr, np.eye(4), strides=ICP_STRIDES)
-    if not icp.ok:
+    if not icp.ok and not refused_ok:
         return None
     fw = flow(fa.image, fb.image)
     bw = flow(fb.image, fa.image)
@@ -105,13 +107,15 @@ def flow_pairs(
     max_points: int = 3000,
     seed: int = 0,
     fallback_gap: int | None = None,
+    icp_refused_ok: bool = False,
 ) -> list[FlowPair]:
     """Pairs ``(i, i + gap)`` (i every ``gap // 2``) whose ICP motion turns >= ``min_rotation_deg``.
 
     ``fallback_gap``: when ``gap`` gives fewer than ``max_pairs`` pairs (a quick hand: ICP from identity
     refuses the wider pairs), pairs ``(i, i + fallback_gap)`` fill the list up to ``max_pairs``. Where
     ``gap`` fills it the result is the same as without (docs/results.md, "Depth not registered to colour,
-    session 9").
+    session 9"). ``icp_refused_ok``: a pair whose ICP refuses (e.g. ill-conditioned on a bare wall) is kept
+    with ``T_b_a`` the identity (for callers that solve the motion themselves, as the delay estimate does).
     """
     rng = np.random.default_rng(seed)
     pairs: list[FlowPair] = []
@@ -122,10 +126,10 @@ def flow_pairs(
             fa, fb = frames[i], frames[i + g]
             if fa.depth is None or fb.depth is None:
                 continue
-            p = _pair(fa, fb, flow, rng, max_points)
+            p = _pair(fa, fb, flow, rng, max_points, icp_refused_ok)
             if p is None or np.degrees(np.linalg.norm(so3_log(p.T_b_a[:3, :3]))) < min_rotation_deg:
                 continue
-            pairs.append(p)
+            pairs.append(replace(p, index_a=i, index_b=i + g))
         if g != gap:
             log.info("registration pairs: %d with the fallback gap %d", len(pairs), g)
     return pairs

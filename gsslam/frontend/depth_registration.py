@@ -40,12 +40,16 @@ from gsslam.frontend.colour_focal import (
 )
 from gsslam.frontend.depth_reprojection import reproject_depth
 from gsslam.frontend.flow import FlowEstimator
+from gsslam.frontend.registration_delay import estimate_delay
 from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
 
-__all__ = ["DepthRegistration", "IDENTITY", "register_frame", "registration_correction", "reproject_depth"]
+__all__ = [
+    "DepthRegistration", "IDENTITY", "register_frame", "registration_correction", "reproject_depth",
+    "with_delay",
+]
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +80,12 @@ class DepthRegistration:
     baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
     handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
     depth_rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_colour_depth's rotation vector (s16)
+    delay_s_estimated: float = float("nan")  # depth this long after colour (registration_delay; not applied)
+    delay_ok: bool = False  # ... observed and trusted
+    delay_std_s: float = float("nan")  # ... its standard deviation
+    delay_reason: str = ""  # ... why not ok
+    delay_pairs: int = 0  # ... from this many pairs' rotation rates
+    delay_rms_deg: tuple[float, float] = (float("nan"), float("nan"))  # ... their residuals' RMS at 0 / tau
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -298,6 +308,17 @@ def _handeye(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegi
     return replace(est, baseline_m=he.baseline_m, baseline_m_fixed_motion=est.baseline_m)
 
 
+def with_delay(est: DepthRegistration, frames: list[Frame], flow: FlowEstimator) -> DepthRegistration:
+    """``est`` with the colour-depth delay estimated over ``frames`` at its registration
+    (:mod:`gsslam.frontend.registration_delay`, session 17); recorded, not applied (``delay_s`` is)."""
+    intr = frames[0].intrinsics
+    d = estimate_delay(frames, flow, est.colour_intrinsics(intr), est.depth_intrinsics(intr), est.baseline_m)
+    return replace(
+        est, delay_s_estimated=d.delay_s, delay_ok=d.ok, delay_std_s=d.std_s, delay_reason=d.reason,
+        delay_pairs=d.pairs, delay_rms_deg=(d.rms_deg_at_zero, d.rms_deg),
+    )  # fmt: skip
+
+
 def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
     """The registration a run used and the estimate behind it, for ``metrics.json``."""
     rec: dict = {
@@ -318,6 +339,13 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         if np.isfinite(est.baseline_m_handeye):
             rec["baseline_m_handeye"] = float(est.baseline_m_handeye)
             rec["handeye_median_chi2"] = float(est.handeye_median_chi2)
+        if np.isfinite(est.delay_s_estimated) or est.delay_reason:
+            rec.update({
+                "delay_s_estimated": float(est.delay_s_estimated), "delay_ok": est.delay_ok,
+                "delay_std_s": float(est.delay_std_s), "delay_reason": est.delay_reason,
+                "delay_pairs": est.delay_pairs, "delay_rms_deg_at_zero": float(est.delay_rms_deg[0]),
+                "delay_rms_deg": float(est.delay_rms_deg[1]),
+            })  # fmt: skip
     else:
         rec["intrinsics_given_for"] = applied.given
     return rec

@@ -37,6 +37,7 @@ from gsslam.frontend.depth_registration import (
     register_frame,
     registration_correction,
     registration_record,
+    with_delay,
 )
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.mono_focal import mono_focal_correction, rescale_focal
@@ -352,6 +353,9 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         )  # fmt: skip
     elif start > 0:
         log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
+    if enc.depth_delay_auto and est is not None and not reg.is_identity():  # recorded only (session 17)
+        stop = min(len(ds), max_frames or len(ds), start + enc.depth_delay_frames)
+        est = with_delay(est, [ds[i] for i in range(start, stop)], flow)
     return reg, est
 
 

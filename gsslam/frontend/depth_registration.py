@@ -40,12 +40,16 @@ from gsslam.frontend.colour_focal import (
 )
 from gsslam.frontend.depth_reprojection import reproject_depth
 from gsslam.frontend.flow import FlowEstimator
+from gsslam.frontend.registration_edges import EdgeTurn, estimate_turn
 from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
 
-__all__ = ["DepthRegistration", "IDENTITY", "register_frame", "registration_correction", "reproject_depth"]
+__all__ = [
+    "DepthRegistration", "IDENTITY", "edge_turn_correction", "register_frame", "registration_correction",
+    "reproject_depth",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +80,7 @@ class DepthRegistration:
     baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
     handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
     depth_rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_colour_depth's rotation vector (s16)
+    edge_turn: EdgeTurn | None = None  # the turn from depth against colour edges (registration_edges; s17)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -298,6 +303,19 @@ def _handeye(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegi
     return replace(est, baseline_m=he.baseline_m, baseline_m_fixed_motion=est.baseline_m)
 
 
+def edge_turn_correction(
+    frames: list[Frame], reg: DepthRegistration, est: DepthRegistration
+) -> tuple[DepthRegistration, DepthRegistration]:
+    """The depth camera's turn from edges (:mod:`gsslam.frontend.registration_edges`) at the applied ``k`` and
+    ``b``, recorded in the estimate and applied where observed (``reg`` an estimate, not IDENTITY)."""
+    intr = frames[0].intrinsics
+    turn = estimate_turn(
+        frames, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m, len(frames)
+    )
+    est = replace(est, edge_turn=turn)
+    return (replace(reg, depth_rotation_deg=turn.rotation_deg, edge_turn=turn) if turn.observed else reg), est
+
+
 def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
     """The registration a run used and the estimate behind it, for ``metrics.json``."""
     rec: dict = {
@@ -315,6 +333,14 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         })  # fmt: skip
         if np.isfinite(est.baseline_m_fixed_motion):
             rec["baseline_m_fixed_motion"] = float(est.baseline_m_fixed_motion)
+        if est.edge_turn is not None:
+            t = est.edge_turn
+            rec.update({
+                "depth_rotation_deg_estimated": list(t.rotation_deg), "depth_rotation_observed": t.observed,
+                "depth_rotation_points": [t.points_u, t.points_v], "depth_rotation_frames": t.frames,
+                "depth_rotation_score": [t.score_unturned, t.score], "depth_rotation_shift_px": t.shift_px,
+                "depth_rotation_baseline_m_edges": t.baseline_m,
+            })  # fmt: skip
         if np.isfinite(est.baseline_m_handeye):
             rec["baseline_m_handeye"] = float(est.baseline_m_handeye)
             rec["handeye_median_chi2"] = float(est.handeye_median_chi2)

@@ -34,6 +34,7 @@ from gsslam.errors import GsslamError
 from gsslam.frontend.depth_registration import (
     IDENTITY,
     DepthRegistration,
+    edge_turn_correction,
     register_frame,
     registration_correction,
     registration_record,
@@ -352,6 +353,11 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         )  # fmt: skip
     elif start > 0:
         log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
+    if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
+        span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
+        reg, est = edge_turn_correction(
+            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est
+        )
     return reg, est
 
 

@@ -81,6 +81,7 @@ class EncoderConfig:
     colour_registration_depth_rz_deg: float = 0.0  # ... z
     colour_registration_depth_rotation_auto: bool = False  # RGB-D: estimate the depth camera's turn from depth vs colour edges and apply it with an estimated registration (registration_edges.py; session 17)
     colour_registration_depth_rotation_span: int = 200  # ... from 20 frames spread over this many first frames
+    colour_registration_depth_rotation_baseline: bool = False  # ... and apply the baseline the edges fit with the turn instead of the estimate's (session 17)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

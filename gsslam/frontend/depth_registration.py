@@ -304,16 +304,22 @@ def _handeye(pairs, intr: CameraIntrinsics, est: DepthRegistration) -> DepthRegi
 
 
 def edge_turn_correction(
-    frames: list[Frame], reg: DepthRegistration, est: DepthRegistration
+    frames: list[Frame], reg: DepthRegistration, est: DepthRegistration, with_baseline: bool = False
 ) -> tuple[DepthRegistration, DepthRegistration]:
     """The depth camera's turn from edges (:mod:`gsslam.frontend.registration_edges`) at the applied ``k`` and
-    ``b``, recorded in the estimate and applied where observed (``reg`` an estimate, not IDENTITY)."""
+    ``b``, recorded in the estimate and applied where observed (``reg`` an estimate, not IDENTITY);
+    ``with_baseline``: the turn and the baseline the edges fit together are applied instead."""
     intr = frames[0].intrinsics
     turn = estimate_turn(
         frames, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m, len(frames)
     )
     est = replace(est, edge_turn=turn)
-    return (replace(reg, depth_rotation_deg=turn.rotation_deg, edge_turn=turn) if turn.observed else reg), est
+    if not turn.observed:
+        return reg, est
+    if with_baseline:
+        reg = replace(reg, baseline_m=turn.baseline_m, baseline_m_fixed_motion=reg.baseline_m)
+        return replace(reg, depth_rotation_deg=turn.rotation_deg_with_baseline), est
+    return replace(reg, depth_rotation_deg=turn.rotation_deg), est
 
 
 def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
@@ -340,6 +346,7 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
                 "depth_rotation_points": [t.points_u, t.points_v], "depth_rotation_frames": t.frames,
                 "depth_rotation_score": [t.score_unturned, t.score], "depth_rotation_shift_px": t.shift_px,
                 "depth_rotation_baseline_m_edges": t.baseline_m,
+                "depth_rotation_deg_with_edges_baseline": list(t.rotation_deg_with_baseline),
             })  # fmt: skip
         if np.isfinite(est.baseline_m_handeye):
             rec["baseline_m_handeye"] = float(est.baseline_m_handeye)

@@ -50,11 +50,10 @@ class EdgeTurn:
     points_v: int = 0  # ... of vertical jumps (about x)
     score: float = float("nan")  # mean saturated colour gradient at the contour, at the estimate
     score_unturned: float = float("nan")  # ... at no turn
-    baseline_m: float = float("nan")  # the baseline the edges prefer at this turn (a check of the estimate's)
+    baseline_m: float = float("nan")  # the baseline the edges fit with the turn (a check of the estimate's)
     frame_rotations_deg: tuple[tuple[float, float], ...] = ()  # each frame's own (rx, ry) scan maximum
-    shift_px: float = (
-        0.0  # the contours' move towards their far side that the edges prefer (fitted with the turn)
-    )
+    shift_px: float = 0.0  # the contours' move towards their far side (fitted with the turn; fattening)
+    rotation_deg_with_baseline: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fitted with baseline_m
 
 
 @dataclass(frozen=True)
@@ -209,6 +208,7 @@ def estimate_turn(
     turn = EdgeTurn(
         tuple(round(float(x), 4) for x in p[:3]), inside, len(edges), n_u, n_v, score(p),
         score(np.zeros(n)), float(pb[-1]), per_frame, float(p[3]) if fit_shift else 0.0,
+        tuple(round(float(x), 4) for x in pb[:3]),
     )  # fmt: skip
     log.info("depth camera's turn from edges: (%.3f, %.3f, %.3f) deg, %s (%d frames, %d + %d contour points, "
              "score %.4f at no turn -> %.4f; contours moved %.2f px towards the far side; the edges' "

@@ -356,8 +356,9 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
         span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
         reg, est = edge_turn_correction(
-            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est
-        )
+            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est,
+            enc.colour_registration_depth_rotation_baseline,
+        )  # fmt: skip
     return reg, est
 
 

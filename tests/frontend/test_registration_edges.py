@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gsslam.frontend.depth_registration import DepthRegistration, edge_turn_correction, registration_record
 from gsslam.frontend.registration_edges import depth_edges, estimate_turn
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
@@ -82,3 +83,17 @@ def test_bare_wall_not_observed():
     assert not est.observed
     assert est.rotation_deg == (0.0, 0.0, 0.0)
     assert est.points_u == est.points_v == 0
+
+
+def test_applied_and_recorded():
+    """The registration's step: the turn observed is applied to the estimated registration and recorded."""
+    reg = DepthRegistration(1.114, BASELINE_M, "depth", ok=True)
+    applied, est = edge_turn_correction([_frame((0.5, -0.4, -0.15))], reg, reg)
+    assert np.allclose(applied.depth_rotation_deg, (0.5, -0.4, -0.15), atol=0.15)
+    assert applied.baseline_m == BASELINE_M and applied.ratio == reg.ratio
+    rec = registration_record(applied, est)
+    assert rec["depth_rotation_observed"]
+    assert rec["depth_rotation_deg_applied"] == list(applied.depth_rotation_deg)
+    assert rec["depth_rotation_deg_estimated"] == list(applied.depth_rotation_deg)
+    bare, est = edge_turn_correction([_frame((0.5, -0.4, 0.0), boxes=[])], reg, reg)
+    assert bare == reg and not registration_record(bare, est)["depth_rotation_observed"]

@@ -79,7 +79,7 @@ class EncoderConfig:
     colour_registration_depth_rx_deg: float = 0.0  # ... and the depth camera turned against the colour one: R_colour_depth's rotation vector, x (deg; session 16)
     colour_registration_depth_ry_deg: float = 0.0  # ... y
     colour_registration_depth_rz_deg: float = 0.0  # ... z
-    colour_registration_depth_rotation_auto: bool = False  # RGB-D: estimate the depth camera's turn from depth vs colour edges and apply it with an estimated registration (registration_edges.py; session 17)
+    colour_registration_depth_rotation_auto: bool = True  # RGB-D: estimate the depth camera's turn from depth vs colour edges and apply it with an estimated registration (registration_edges.py; session 17)
     colour_registration_depth_rotation_span: int = 200  # ... from 20 frames spread over this many first frames
     colour_registration_depth_rotation_baseline: bool = False  # ... and apply the baseline the edges fit with the turn instead of the estimate's (session 17)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth

@@ -41,15 +41,16 @@ from gsslam.frontend.colour_focal import (
 from gsslam.frontend.depth_reprojection import reproject_depth
 from gsslam.frontend.flow import FlowEstimator
 from gsslam.frontend.registration_delay import estimate_delay
+from gsslam.frontend.registration_edges import EdgeTurn, estimate_turn
 from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
 
 __all__ = [
-    "DepthRegistration", "IDENTITY", "register_frame", "registration_correction", "reproject_depth",
-    "with_delay",
-]
+    "DepthRegistration", "IDENTITY", "edge_turn_correction", "register_frame", "registration_correction",
+    "reproject_depth", "with_delay",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +87,7 @@ class DepthRegistration:
     delay_reason: str = ""  # ... why not ok
     delay_pairs: int = 0  # ... from this many pairs' rotation rates
     delay_rms_deg: tuple[float, float] = (float("nan"), float("nan"))  # ... their residuals' RMS at 0 / tau
+    edge_turn: EdgeTurn | None = None  # the turn from depth against colour edges (registration_edges; s17)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -317,6 +319,23 @@ def with_delay(est: DepthRegistration, frames: list[Frame], flow: FlowEstimator)
         est, delay_s_estimated=d.delay_s, delay_ok=d.ok, delay_std_s=d.std_s, delay_reason=d.reason,
         delay_pairs=d.pairs, delay_rms_deg=(d.rms_deg_at_zero, d.rms_deg),
     )  # fmt: skip
+def edge_turn_correction(
+    frames: list[Frame], reg: DepthRegistration, est: DepthRegistration, with_baseline: bool = False
+) -> tuple[DepthRegistration, DepthRegistration]:
+    """The depth camera's turn from edges (:mod:`gsslam.frontend.registration_edges`) at the applied ``k`` and
+    ``b``, recorded in the estimate and applied where observed (``reg`` an estimate, not IDENTITY);
+    ``with_baseline``: the turn and the baseline the edges fit together are applied instead."""
+    intr = frames[0].intrinsics
+    turn = estimate_turn(
+        frames, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m, len(frames)
+    )
+    est = replace(est, edge_turn=turn)
+    if not turn.observed:
+        return reg, est
+    if with_baseline:
+        reg = replace(reg, baseline_m=turn.baseline_m, baseline_m_fixed_motion=reg.baseline_m)
+        return replace(reg, depth_rotation_deg=turn.rotation_deg_with_baseline), est
+    return replace(reg, depth_rotation_deg=turn.rotation_deg), est
 
 
 def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
@@ -336,6 +355,15 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
         })  # fmt: skip
         if np.isfinite(est.baseline_m_fixed_motion):
             rec["baseline_m_fixed_motion"] = float(est.baseline_m_fixed_motion)
+        if est.edge_turn is not None:
+            t = est.edge_turn
+            rec.update({
+                "depth_rotation_deg_estimated": list(t.rotation_deg), "depth_rotation_observed": t.observed,
+                "depth_rotation_points": [t.points_u, t.points_v], "depth_rotation_frames": t.frames,
+                "depth_rotation_score": [t.score_unturned, t.score], "depth_rotation_shift_px": t.shift_px,
+                "depth_rotation_baseline_m_edges": t.baseline_m,
+                "depth_rotation_deg_with_edges_baseline": list(t.rotation_deg_with_baseline),
+            })  # fmt: skip
         if np.isfinite(est.baseline_m_handeye):
             rec["baseline_m_handeye"] = float(est.baseline_m_handeye)
             rec["handeye_median_chi2"] = float(est.handeye_median_chi2)

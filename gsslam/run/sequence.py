@@ -34,6 +34,7 @@ from gsslam.errors import GsslamError
 from gsslam.frontend.depth_registration import (
     IDENTITY,
     DepthRegistration,
+    edge_turn_correction,
     register_frame,
     registration_correction,
     registration_record,
@@ -356,6 +357,12 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if enc.depth_delay_auto and est is not None and not reg.is_identity():  # recorded only (session 17)
         stop = min(len(ds), max_frames or len(ds), start + enc.depth_delay_frames)
         est = with_delay(est, [ds[i] for i in range(start, stop)], flow)
+    if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
+        span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
+        reg, est = edge_turn_correction(
+            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est,
+            enc.colour_registration_depth_rotation_baseline,
+        )  # fmt: skip
     return reg, est
 
 

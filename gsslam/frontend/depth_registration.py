@@ -76,6 +76,7 @@ class DepthRegistration:
     baseline_m_handeye: float = float("nan")  # the hand-eye baseline (registration_handeye), used or not
     handeye_median_chi2: float = float("nan")  # its pairs' agreement (used when <= MAX_MEDIAN_CHI2)
     depth_rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_colour_depth's rotation vector (s16)
+    delay_s: float = 0.0  # depth taken this long after colour, as applied (s; session 17, depth_retiming)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -323,15 +324,24 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
     return rec
 
 
-def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
-    """``frame`` (with the dataset's intrinsics) with the colour intrinsics and depth in the colour grid."""
-    if reg.is_identity():
+def register_frame(frame: Frame, reg: DepthRegistration, D_delay: np.ndarray | None = None) -> Frame:
+    """``frame`` (with the dataset's intrinsics) with the colour intrinsics and depth in the colour grid.
+
+    ``D_delay`` [4, 4]: the colour camera's motion over the delay between the frame's colour and depth
+    images (``reg.delay_s``; :mod:`gsslam.frontend.depth_retiming`): the depth is re-projected with
+    ``D_delay @ T_colour_depth``, also where the data is registered (``reg`` the identity). None: no motion.
+    """
+    if reg.is_identity() and D_delay is None:
         return frame
     intr = frame.intrinsics
     depth = frame.depth
     if depth is not None:
+        R, t = reg.R_colour_depth(), None
+        if D_delay is not None:
+            T = D_delay @ reg.T_colour_depth()
+            R, t = T[:3, :3], T[:3, 3]
         depth = reproject_depth(
             depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m,
-            reg.depth_mean_tol, reg.depth_interp_tol, reg.R_colour_depth(),
+            reg.depth_mean_tol, reg.depth_interp_tol, R, t,
         )  # fmt: skip
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

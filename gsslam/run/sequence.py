@@ -38,6 +38,7 @@ from gsslam.frontend.depth_registration import (
     registration_correction,
     registration_record,
 )
+from gsslam.frontend.depth_retiming import DepthRetimer
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.mono_focal import mono_focal_correction, rescale_focal
 from gsslam.run.checkpoint import (
@@ -227,12 +228,14 @@ def run_dataset(
         reg = replace(
             reg, depth_mean_tol=cfg.encoder.colour_registration_depth_mean_tol,
             depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
+            delay_s=cfg.encoder.depth_delay_s if cfg.mode == "rgbd" else 0.0,
         )  # fmt: skip
+        retimer = DepthRetimer(reg.delay_s) if reg.delay_s else None  # depth after colour: moved back
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
         camera = trajectory_camera(  # the camera trajectory.tum is (7-Scenes' ground truth: the depth one)
-            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.T_colour_depth()
+            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.T_colour_depth(), reg.delay_s
         )
         pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))
         if imu_stage is not None:
@@ -259,7 +262,10 @@ def run_dataset(
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    pipe.process(rescale_focal(register_frame(frame, reg), mono_scale))
+                    D = None if retimer is None else retimer.motion(frame.timestamp)
+                    pose = pipe.process(rescale_focal(register_frame(frame, reg, D), mono_scale))
+                    if retimer is not None:
+                        retimer.observe(frame.timestamp, pose)
                     done += 1
                     if progress is not None:
                         progress(done, n, done / max(time.perf_counter() - t0 + seconds_before, 1e-9))
@@ -286,6 +292,8 @@ def run_dataset(
                 "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
                 "peak_rss_scope": rss_scope,
             }
+            if retimer is not None:
+                extra["depth_retiming"] = retimer.record()
             if focal is not None or reg.given_by_config:
                 extra["colour_focal"] = registration_record(reg, focal)
             check = getattr(pipe.encoder, "check", None)  # RGB-D: the encoder's ColourDepthCheck

@@ -98,6 +98,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_registration_depth_ry_deg": Range(-10.0, 10.0),
     "encoder.colour_registration_depth_rz_deg": Range(-10.0, 10.0),
     "encoder.depth_delay_s": Range(-0.1, 0.1),
+    "encoder.depth_delay_velocity_frames": Range(1, 10),
     "encoder.colour_registration_depth_mean_tol": Range(0.0, 0.2),
     "encoder.colour_registration_depth_interp_tol": Range(0.0, 0.2),
     "encoder.colour_registration_joint_weight": NONNEG,

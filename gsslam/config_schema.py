@@ -80,6 +80,7 @@ class EncoderConfig:
     colour_registration_depth_ry_deg: float = 0.0  # ... y
     colour_registration_depth_rz_deg: float = 0.0  # ... z
     depth_delay_s: float = 0.0  # RGB-D: each depth image taken this long AFTER its colour image (s; negative: before): its depth re-projected by the colour camera's motion over it (depth_retiming.py; 0: off)
+    depth_delay_velocity_frames: int = 1  # ... the colour camera's velocity over the delay from the last this many + 1 tracked poses (1: the last two; more: a smaller feedback gain, more lag; session 17)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

@@ -230,7 +230,7 @@ def run_dataset(
             depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
             delay_s=cfg.encoder.depth_delay_s if cfg.mode == "rgbd" else 0.0,
         )  # fmt: skip
-        retimer = DepthRetimer(reg.delay_s) if reg.delay_s else None  # depth after colour: moved back
+        retimer = DepthRetimer(reg.delay_s, cfg.encoder.depth_delay_velocity_frames) if reg.delay_s else None
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays

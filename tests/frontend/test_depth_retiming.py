@@ -138,6 +138,15 @@ def test_retimer_extrapolates_the_last_two_poses():
     assert r.record() == {"delay_s": tau, "frames_retimed": 1, "frames_not_retimed": 5}
 
 
+def test_retimer_over_more_frames():
+    r = DepthRetimer(0.016, span=3)  # the velocity from the 1st and 4th of the last four posed frames
+    for k in range(3):
+        r.observe(k / FPS, _path(k / FPS))
+        assert r.motion((k + 1) / FPS) is None
+    r.observe(3 / FPS, _path(3 / FPS))
+    np.testing.assert_allclose(r.motion(4 / FPS), invert_T(_path(4 / FPS)) @ _path(4 / FPS + 0.016), atol=1e-9)
+
+
 def test_delay_motions_of_a_finished_trajectory():
     ts = {i: i / FPS for i in range(5)}
     poses = {i: _path(t) for i, t in ts.items()}

@@ -6,7 +6,7 @@ extrapolation of the poses the run has tracked (:class:`gsslam.frontend.depth_re
 The written trajectory (the depth camera at the depth image's time) still takes D from its own poses.
 docs/results.md, "Re-timing the depth for a known delay, session 17".
 
-    PYTHONPATH=. nice python3 tests/accuracy/retime_oracle_s17.py tests/accuracy/retime_room400_s17.yaml OUT --config retimed
+    PYTHONPATH=. python3 tests/accuracy/retime_oracle_s17.py tests/accuracy/retime_room400_d16_s17.yaml OUT
     PYTHONPATH=. python3 tests/accuracy/retime_report_s17.py OUT
 """
 

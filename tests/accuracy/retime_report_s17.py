@@ -45,8 +45,9 @@ def main() -> None:
     ap.add_argument("outs", type=Path, nargs="+")
     a = ap.parse_args()
     print(
-        "| run | delay ms | given ms | frames | ATE cm (metrics) | written at colour time | vs truth without delay "
-        "| colour vs colour truth | RPE cm / deg | Sim3 scale | k | b mm (hand-eye chi2) | re-timed | loops |"
+        "| run | delay ms | given ms | frames | ATE cm (metrics) | written at colour time "
+        "| vs truth without delay | colour vs colour truth | RPE cm / deg | Sim3 scale | k "
+        "| b mm (hand-eye chi2) | re-timed | loops |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
@@ -63,7 +64,8 @@ def main() -> None:
             kw = yaml.safe_load((run / "synthetic.yaml").read_text())
             cfg = yaml.safe_load((run / "config.yaml").read_text())
             given = 1000 * float(cfg["encoder"].get("depth_delay_s", 0.0))
-            cf, lc, rt = m.get("colour_focal") or {}, m.get("loop_closure") or {}, m.get("depth_retiming") or {}
+            cf, lc = m.get("colour_focal") or {}, m.get("loop_closure") or {}
+            rt = m.get("depth_retiming") or {}
             colour = run / "trajectory_colour.tum"
             colour = colour if colour.is_file() else run / "trajectory.tum"
             rpe = f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f}" if row else "-"
@@ -71,10 +73,12 @@ def main() -> None:
             no_delay = ate_cm(truth_without_delay(kw, "depth"), run / "trajectory.tum")
             colour_own = ate_cm(truth_without_delay(kw, "colour"), colour)
             reg = f"{cf.get('ratio_applied', nan):.4f} | {1000 * cf.get('baseline_m_applied', nan):.1f}"
-            retimed = f"{rt['frames_retimed']}/{rt['frames_retimed'] + rt['frames_not_retimed']}" if rt else "-"
+            n_rt = rt.get("frames_retimed", 0) + rt.get("frames_not_retimed", 0)
+            retimed = f"{rt['frames_retimed']}/{n_rt}" if rt else "-"
             print(
-                f"| {run.name} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {given:g} | {m['frames_posed']} "
-                f"| {100 * m['ate']['rmse_m']:.3f} | {written_at_colour_time_cm(kw, run, m):.3f} | {no_delay:.3f} "
+                f"| {run.name} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {given:g} "
+                f"| {m['frames_posed']} | {100 * m['ate']['rmse_m']:.3f} "
+                f"| {written_at_colour_time_cm(kw, run, m):.3f} | {no_delay:.3f} "
                 f"| {colour_own:.3f} | {rpe} | {scale} | {reg} ({cf.get('handeye_median_chi2', nan):.1f}) "
                 f"| {retimed} | {lc.get('accepted')}/{lc.get('detected')} |"
             )

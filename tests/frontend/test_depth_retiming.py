@@ -144,7 +144,8 @@ def test_retimer_over_more_frames():
         r.observe(k / FPS, _path(k / FPS))
         assert r.motion((k + 1) / FPS) is None
     r.observe(3 / FPS, _path(3 / FPS))
-    np.testing.assert_allclose(r.motion(4 / FPS), invert_T(_path(4 / FPS)) @ _path(4 / FPS + 0.016), atol=1e-9)
+    want = invert_T(_path(4 / FPS)) @ _path(4 / FPS + 0.016)
+    np.testing.assert_allclose(r.motion(4 / FPS), want, atol=1e-9)
 
 
 def test_delay_motions_of_a_finished_trajectory():

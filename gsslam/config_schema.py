@@ -79,11 +79,14 @@ class EncoderConfig:
     colour_registration_depth_rx_deg: float = 0.0  # ... and the depth camera turned against the colour one: R_colour_depth's rotation vector, x (deg; session 16)
     colour_registration_depth_ry_deg: float = 0.0  # ... y
     colour_registration_depth_rz_deg: float = 0.0  # ... z
-    depth_delay_auto: bool = False  # RGB-D, registration estimated: also estimate the colour-depth delay (depth image this long after its colour image) from the two cameras' rotation rates (registration_delay.py; recorded in metrics.json colour_focal, not applied; session 17)
+    depth_delay_auto: bool = False  # RGB-D, registration estimated: also estimate the colour-depth delay (depth image this long after its colour image) from the two cameras' rotation rates (registration_delay.py; recorded in metrics.json colour_focal) and re-time the depth by it where trusted (depth_retiming.py; depth_delay_s, when given, wins; session 17)
     depth_delay_frames: int = 120  # ... over this many frames from the registration's window (the first 40 rarely turn at a changing rate)
+    depth_delay_min_s: float = 0.003  # ... applied (with depth_delay_auto) only when at least this large (s): synchronised data read -1.9..+0.4 ms (session 17)
     colour_registration_depth_rotation_auto: bool = True  # RGB-D: estimate the depth camera's turn from depth vs colour edges and apply it with an estimated registration (registration_edges.py; session 17)
     colour_registration_depth_rotation_span: int = 200  # ... from 20 frames spread over this many first frames
     colour_registration_depth_rotation_baseline: bool = False  # ... and apply the baseline the edges fit with the turn instead of the estimate's (session 17)
+    depth_delay_s: float = 0.0  # RGB-D: each depth image taken this long AFTER its colour image (s; negative: before): its depth re-projected by the colour camera's motion over it (depth_retiming.py; 0: off)
+    depth_delay_velocity_frames: int = 1  # ... the colour camera's velocity over the delay from the last this many + 1 tracked poses (1: the last two; more: a smaller feedback gain, more lag; session 17)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

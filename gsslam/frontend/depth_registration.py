@@ -88,6 +88,7 @@ class DepthRegistration:
     delay_pairs: int = 0  # ... from this many pairs' rotation rates
     delay_rms_deg: tuple[float, float] = (float("nan"), float("nan"))  # ... their residuals' RMS at 0 / tau
     edge_turn: EdgeTurn | None = None  # the turn from depth against colour edges (registration_edges; s17)
+    delay_s: float = 0.0  # depth taken this long after colour, as applied (s; session 17, depth_retiming)
 
     def colour_intrinsics(self, intr: CameraIntrinsics) -> CameraIntrinsics:
         return intr.with_focal(1.0 / self.ratio if self.given == "depth" else 1.0)
@@ -338,56 +339,24 @@ def edge_turn_correction(
     return replace(reg, depth_rotation_deg=turn.rotation_deg), est
 
 
-def registration_record(applied: DepthRegistration, est: DepthRegistration | None) -> dict:
-    """The registration a run used and the estimate behind it, for ``metrics.json``."""
-    rec: dict = {
-        "given": applied.given_by_config, "applied": not applied.is_identity(),
-        "ratio_applied": float(applied.ratio), "baseline_m_applied": float(applied.baseline_m),
-    }  # fmt: skip
-    if any(applied.depth_rotation_deg):
-        rec["depth_rotation_deg_applied"] = [float(x) for x in applied.depth_rotation_deg]
-    if est is not None:
-        rec.update({
-            "ratio_estimated": float(est.ratio), "baseline_m_estimated": float(est.baseline_m),
-            "intrinsics_given_for": est.given, "pairs": est.pairs, "points": est.points, "ok": est.ok,
-            "cost_px_at_1": est.cost_registered, "cost_px_at_ratio": est.cost,
-            "pair_baselines_m": list(est.pair_baselines_m),
-        })  # fmt: skip
-        if np.isfinite(est.baseline_m_fixed_motion):
-            rec["baseline_m_fixed_motion"] = float(est.baseline_m_fixed_motion)
-        if est.edge_turn is not None:
-            t = est.edge_turn
-            rec.update({
-                "depth_rotation_deg_estimated": list(t.rotation_deg), "depth_rotation_observed": t.observed,
-                "depth_rotation_points": [t.points_u, t.points_v], "depth_rotation_frames": t.frames,
-                "depth_rotation_score": [t.score_unturned, t.score], "depth_rotation_shift_px": t.shift_px,
-                "depth_rotation_baseline_m_edges": t.baseline_m,
-                "depth_rotation_deg_with_edges_baseline": list(t.rotation_deg_with_baseline),
-            })  # fmt: skip
-        if np.isfinite(est.baseline_m_handeye):
-            rec["baseline_m_handeye"] = float(est.baseline_m_handeye)
-            rec["handeye_median_chi2"] = float(est.handeye_median_chi2)
-        if np.isfinite(est.delay_s_estimated) or est.delay_reason:
-            rec.update({
-                "delay_s_estimated": float(est.delay_s_estimated), "delay_ok": est.delay_ok,
-                "delay_std_s": float(est.delay_std_s), "delay_reason": est.delay_reason,
-                "delay_pairs": est.delay_pairs, "delay_rms_deg_at_zero": float(est.delay_rms_deg[0]),
-                "delay_rms_deg": float(est.delay_rms_deg[1]),
-            })  # fmt: skip
-    else:
-        rec["intrinsics_given_for"] = applied.given
-    return rec
+def register_frame(frame: Frame, reg: DepthRegistration, D_delay: np.ndarray | None = None) -> Frame:
+    """``frame`` (with the dataset's intrinsics) with the colour intrinsics and depth in the colour grid.
 
-
-def register_frame(frame: Frame, reg: DepthRegistration) -> Frame:
-    """``frame`` (with the dataset's intrinsics) with the colour intrinsics and depth in the colour grid."""
-    if reg.is_identity():
+    ``D_delay`` [4, 4]: the colour camera's motion over the delay between the frame's colour and depth
+    images (``reg.delay_s``; :mod:`gsslam.frontend.depth_retiming`): the depth is re-projected with
+    ``D_delay @ T_colour_depth``, also where the data is registered (``reg`` the identity). None: no motion.
+    """
+    if reg.is_identity() and D_delay is None:
         return frame
     intr = frame.intrinsics
     depth = frame.depth
     if depth is not None:
+        R, t = reg.R_colour_depth(), None
+        if D_delay is not None:
+            T = D_delay @ reg.T_colour_depth()
+            R, t = T[:3, :3], T[:3, 3]
         depth = reproject_depth(
             depth, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m,
-            reg.depth_mean_tol, reg.depth_interp_tol, reg.R_colour_depth(),
+            reg.depth_mean_tol, reg.depth_interp_tol, R, t,
         )  # fmt: skip
     return replace(frame, intrinsics=reg.colour_intrinsics(intr), depth=depth)

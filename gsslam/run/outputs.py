@@ -123,7 +123,8 @@ def write_outputs(
     if not camera.is_colour:
         write_tum(trajectory_of(pipe, poses), out / f"trajectory{COLOUR_SUFFIX}.tum")
         write_tum(trajectory_of(pipe, kf_poses), out / f"keyframes{COLOUR_SUFFIX}.tum")
-    traj, kf_traj = trajectory_of(pipe, camera.apply(poses)), trajectory_of(pipe, camera.apply(kf_poses))
+    traj = trajectory_of(pipe, camera.apply(poses, pipe.timestamps))
+    kf_traj = trajectory_of(pipe, camera.apply(kf_poses, pipe.timestamps, velocity_from=poses))
     write_tum(traj, out / "trajectory.tum")
     write_tum(kf_traj, out / "keyframes.tum")
     try:  # keyframe images + camera make the run folder self-contained for `gsslam export` / `--viz rerun`
@@ -141,13 +142,13 @@ def write_outputs(
     ate, pair = ate_metrics(gt, traj, align) if joined else (None, None)
     ate_kf, _ = ate_metrics(gt, kf_traj, align) if joined else (None, None)
     ate_bb, _ = (
-        ate_metrics(gt, trajectory_of(pipe, camera.apply(before_batch)), align)
+        ate_metrics(gt, trajectory_of(pipe, camera.apply(before_batch, pipe.timestamps)), align)
         if before_batch and joined
         else (None, None)
     )
     online = getattr(pipe, "online_poses", None)  # the pose process() returned for each frame
     ate_on, _ = (
-        ate_metrics(gt, trajectory_of(pipe, camera.apply(online)), align)
+        ate_metrics(gt, trajectory_of(pipe, camera.apply(online, pipe.timestamps)), align)
         if online and joined
         else (None, None)
     )
@@ -173,7 +174,8 @@ def write_outputs(
         "ate_before_batch": ate_bb,
         "ate_online": ate_on,
         "frames_posed_online": len(online or {}),
-        "ate_per_chain": None if joined else ate_per_chain(pipe, gt, camera.apply(poses), align),
+        "ate_per_chain": None if joined else ate_per_chain(pipe, gt, camera.apply(poses, pipe.timestamps),
+                                                           align),
         "trajectory_camera": camera.record(),
         "events": [{"frame": e.frame_index, "kind": e.kind, "detail": e.detail} for e in pipe.events],
         "interrupted": interrupted,
@@ -292,7 +294,7 @@ def write_map_outputs(
         ev["ssim_keyframes_refined_poses"] = ev_r["ssim_keyframes"]
         gt = ds.ground_truth()
         align = "sim3" if pipe.monocular else "se3"
-        refined_cam = trajectory_of(pipe, camera.apply(refined))  # in the ground truth's camera, as every ATE
+        refined_cam = trajectory_of(pipe, camera.apply(refined, pipe.timestamps))  # the ground truth's camera
         ev["ate_keyframes_refined_poses"], _ = ate_metrics(gt, refined_cam, align)
     empty = mapper.num_gaussians == 0
     if empty:

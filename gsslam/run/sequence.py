@@ -31,17 +31,10 @@ from gsslam.datasets import open_dataset
 from gsslam.datasets.frame_range import FrameRange
 from gsslam.datasets.prefetch import FramePrefetcher
 from gsslam.errors import GsslamError
-from gsslam.frontend.depth_registration import (
-    IDENTITY,
-    DepthRegistration,
-    edge_turn_correction,
-    register_frame,
-    registration_correction,
-    registration_record,
-    with_delay,
-)
-from gsslam.frontend.flow import make_flow_estimator
-from gsslam.frontend.mono_focal import mono_focal_correction, rescale_focal
+from gsslam.frontend.depth_registration import register_frame
+from gsslam.frontend.depth_retiming import DepthRetimer
+from gsslam.frontend.mono_focal import rescale_focal
+from gsslam.frontend.registration_record import registration_record
 from gsslam.run.checkpoint import (
     CheckpointSchedule,
     dataset_identity,
@@ -55,6 +48,7 @@ from gsslam.run.interrupt import DeferredInterrupt
 from gsslam.run.memory import HeapTrimmer, reset_peak_rss
 from gsslam.run.outputs import write_metrics, write_outputs
 from gsslam.run.provenance import provenance
+from gsslam.run.registration import applied_delay, colour_registration, mono_focal_calibration
 from gsslam.run.trajectory_camera import trajectory_camera
 from gsslam.slam.pipeline import Pipeline
 from gsslam.types import StageProgress
@@ -229,12 +223,14 @@ def run_dataset(
         reg = replace(
             reg, depth_mean_tol=cfg.encoder.colour_registration_depth_mean_tol,
             depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
+            delay_s=applied_delay(cfg, focal),
         )  # fmt: skip
+        retimer = DepthRetimer(reg.delay_s, cfg.encoder.depth_delay_velocity_frames) if reg.delay_s else None
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
-        mono_scale, mono_focal = _mono_focal(ds, cfg, max_frames)  # 1.0: the given focal stays
+        mono_scale, mono_focal = mono_focal_calibration(ds, cfg, max_frames)  # 1.0: the given focal stays
         camera = trajectory_camera(  # the camera trajectory.tum is (7-Scenes' ground truth: the depth one)
-            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.T_colour_depth()
+            cfg.run.trajectory_camera, ds, None if reg.is_identity() else reg.T_colour_depth(), reg.delay_s
         )
         pipe = Pipeline(cfg, reg.colour_intrinsics(ds.intrinsics).with_focal(mono_scale))
         if imu_stage is not None:
@@ -261,7 +257,10 @@ def run_dataset(
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    pipe.process(rescale_focal(register_frame(frame, reg), mono_scale))
+                    D = None if retimer is None else retimer.motion(frame.timestamp)
+                    pose = pipe.process(rescale_focal(register_frame(frame, reg, D), mono_scale))
+                    if retimer is not None:
+                        retimer.observe(frame.timestamp, pose)
                     done += 1
                     if progress is not None:
                         progress(done, n, done / max(time.perf_counter() - t0 + seconds_before, 1e-9))
@@ -288,6 +287,8 @@ def run_dataset(
                 "checkpoints": {**ckpt.summary(), "load_seconds": load_seconds},
                 "peak_rss_scope": rss_scope,
             }
+            if retimer is not None:
+                extra["depth_retiming"] = retimer.record()
             if focal is not None or reg.given_by_config:
                 extra["colour_focal"] = registration_record(reg, focal)
             check = getattr(pipe.encoder, "check", None)  # RGB-D: the encoder's ColourDepthCheck
@@ -311,82 +312,6 @@ def run_dataset(
             )  # fmt: skip
         remove_checkpoints(out)  # the run is complete: nothing to resume
     return result
-
-
-def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to apply, estimate | None)
-    """RGB-D: depth-to-colour registration from the first frames (frontend/depth_registration.py), as a
-    run estimates it; a run that applies a registration also takes its poses from depth (``rgbd_icp``).
-    Windows of ``encoder.colour_focal_frames`` are read in turn, up to ``colour_focal_max_frames``, until
-    one gives the estimate evidence (``ok``); none: a warning, and the depth is used as given."""
-    enc = cfg.encoder
-    if cfg.mode == "rgbd" and enc.colour_registration_ratio > 0:  # given: no estimate
-        reg = DepthRegistration(
-            enc.colour_registration_ratio, enc.colour_registration_baseline_m, enc.colour_registration_given,
-            ok=True, given_by_config=True, depth_rotation_deg=(
-                enc.colour_registration_depth_rx_deg, enc.colour_registration_depth_ry_deg,
-                enc.colour_registration_depth_rz_deg,
-            ),
-        )  # fmt: skip
-        log.info("depth-to-colour registration given: k %.4f, baseline %.1f mm, intrinsics of the %s camera, "
-                 "depth camera turned %s deg", reg.ratio, 1000 * reg.baseline_m, reg.given,
-                 reg.depth_rotation_deg)  # fmt: skip
-        return reg, None
-    if cfg.mode != "rgbd" or not enc.colour_focal_auto:
-        return IDENTITY, None
-    end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
-    flow = make_flow_estimator(registration_flow_config(cfg))
-    reg, est, start = IDENTITY, None, 0
-    while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
-        frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
-        reg, est = registration_correction(
-            frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
-            min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
-            joint_weight=enc.colour_registration_joint_weight, handeye=enc.colour_registration_handeye,
-        )  # fmt: skip
-        if est is None or est.ok:
-            break
-        start += enc.colour_focal_frames
-    if est is not None and not est.ok:
-        log.warning(
-            "depth-to-colour registration: no evidence in the first %d frames (%d flow pairs with depth "
-            "geometry); depth is used as given. If it is not registered to colour, results suffer "
-            "(docs/frontend.md)", end, est.pairs,
-        )  # fmt: skip
-    elif start > 0:
-        log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
-    if enc.depth_delay_auto and est is not None and not reg.is_identity():  # recorded only (session 17)
-        stop = min(len(ds), max_frames or len(ds), start + enc.depth_delay_frames)
-        est = with_delay(est, [ds[i] for i in range(start, stop)], flow)
-    if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
-        span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
-        reg, est = edge_turn_correction(
-            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est,
-            enc.colour_registration_depth_rotation_baseline,
-        )  # fmt: skip
-    return reg, est
-
-
-def registration_flow_config(cfg: Config):
-    """The flow of the registration estimate: ``cfg.flow`` with ``encoder.colour_registration_flow_*``."""
-    enc = cfg.encoder
-    return replace(
-        cfg.flow, dis_preset=enc.colour_registration_flow_preset or cfg.flow.dis_preset,
-        max_side=enc.colour_registration_flow_max_side or cfg.flow.max_side,
-    )  # fmt: skip
-
-
-def _mono_focal(ds, cfg: Config, max_frames: int | None):  # -> (focal scale to apply, estimate | None)
-    """Mono: focal self-calibration from the first frames (frontend/mono_focal.py)."""
-    nominal = cfg.encoder.mono_focal_auto_nominal and getattr(ds, "intrinsics_nominal", False)
-    if cfg.mode != "mono" or not (cfg.encoder.mono_focal_auto or nominal):
-        return 1.0, None
-    if nominal and not cfg.encoder.mono_focal_auto:
-        log.info(
-            "mono focal: %s hands out nominal intrinsics; calibrating the focal",
-            getattr(ds, "name", "the dataset"),
-        )
-    n = min(len(ds), cfg.encoder.mono_focal_frames, max_frames or len(ds))
-    return mono_focal_correction([ds[i] for i in range(n)], make_flow_estimator(cfg.flow), cfg.encoder)
 
 
 class RunError(GsslamError):

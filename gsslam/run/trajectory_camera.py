@@ -23,6 +23,11 @@ metric baseline) the two cameras are one and ``trajectory.tum`` is the colour ca
 camera is not the colour camera, the colour camera's poses are written beside it (``trajectory_colour.tum``,
 ``keyframes_colour.tum``): exports, renders and the viewer pair them with the colour images
 (:func:`image_poses_file`).
+
+With a delay between each frame's colour and depth images (``encoder.depth_delay_s``, session 17), the depth
+camera is written at its own image's time, as 7-Scenes' KinectFusion poses are: ``T_world_colour(t) D(t)
+T_colour_depth``, ``D`` the colour camera's motion over the delay from the velocity between the frame's two
+neighbours (:func:`gsslam.frontend.depth_retiming.delay_motions`).
 """
 
 from __future__ import annotations
@@ -32,6 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from gsslam.frontend.depth_retiming import delay_motions
 
 log = logging.getLogger(__name__)
 
@@ -45,21 +52,32 @@ class TrajectoryCamera:
 
     name: str = "colour"
     T_colour_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    delay_s: float = 0.0  # the camera's image taken this long after the colour image (a depth camera's)
 
     @property
     def is_colour(self) -> bool:
         return bool(np.array_equal(self.T_colour_cam, np.eye(4)))
 
-    def apply(self, poses: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
-        """``T_world_colour`` per frame -> ``T_world_cam`` of this camera."""
+    def apply(
+        self,
+        poses: dict[int, np.ndarray],  # frame -> T_world_colour [4, 4]
+        timestamps: dict[int, float] | None = None,  # frame -> its colour image's time
+        velocity_from: dict[int, np.ndarray] | None = None,  # whose neighbours give D (default: poses)
+    ) -> dict[int, np.ndarray]:
+        """``T_world_colour`` per frame -> ``T_world_cam`` of this camera (at its own image's time where
+        ``delay_s`` and the frames' ``timestamps`` are given; keyframes take D from every frame's poses)."""
         if self.is_colour:
             return poses
-        return {i: T @ self.T_colour_cam for i, T in poses.items()}
+        if self.delay_s == 0.0 or timestamps is None:
+            return {i: T @ self.T_colour_cam for i, T in poses.items()}
+        D = delay_motions(poses if velocity_from is None else velocity_from, timestamps, self.delay_s)
+        return {i: T @ D.get(i, np.eye(4)) @ self.T_colour_cam for i, T in poses.items()}
 
     def record(self) -> dict:
         """For ``metrics.json``."""
         T = self.T_colour_cam.tolist()
-        return {"camera": self.name, "T_colour_camera": T, "colour_files": not self.is_colour}
+        rec = {"camera": self.name, "T_colour_camera": T, "colour_files": not self.is_colour}
+        return {**rec, "delay_s": self.delay_s} if self.delay_s else rec
 
 
 COLOUR = TrajectoryCamera()
@@ -71,10 +89,12 @@ def ground_truth_camera(ds) -> str:
     return cam if cam in ("colour", "depth") else "colour"
 
 
-def trajectory_camera(choice: str, ds, T_colour_depth: np.ndarray | None) -> TrajectoryCamera:
+def trajectory_camera(
+    choice: str, ds, T_colour_depth: np.ndarray | None, delay_s: float = 0.0
+) -> TrajectoryCamera:
     """The camera to write (``run.trajectory_camera``); ``T_colour_depth``: the applied registration's depth
     camera in the colour frame (``DepthRegistration.T_colour_depth``), ``None`` without a registration
-    (registered depth, mono)."""
+    (registered depth, mono); ``delay_s``: the depth images' delay after the colour images (module doc)."""
     if choice not in CAMERAS:
         raise ValueError(f"run.trajectory_camera must be one of {CAMERAS}, got {choice!r}")
     name = ground_truth_camera(ds) if choice == "ground_truth" else choice
@@ -91,7 +111,7 @@ def trajectory_camera(choice: str, ds, T_colour_depth: np.ndarray | None) -> Tra
         "trajectory.tum is the depth camera's (%.1f mm beside the colour camera along x), as the "
         "dataset's ground truth; the colour camera's is in trajectory_colour.tum", 1000 * T_colour_depth[0, 3],
     )  # fmt: skip
-    return TrajectoryCamera("depth", np.array(T_colour_depth, dtype=np.float64))
+    return TrajectoryCamera("depth", np.array(T_colour_depth, dtype=np.float64), float(delay_s))
 
 
 def image_poses_file(run_dir: Path, stem: str) -> Path:

@@ -57,7 +57,7 @@ def main() -> None:
     cfg = load_config(None, ["mapper.enabled=false", f"loop.enabled={loops}", *a.set], mode="rgbd")
     n = min(len(ds), row.get("frames") or len(ds), a.max_frames or len(ds))
     from gsslam.frontend.depth_registration import register_frame
-    from gsslam.run.sequence import colour_registration
+    from gsslam.run.registration import colour_registration
 
     reg, _ = colour_registration(ds, cfg, n)  # as the runner does
     if reg.is_identity():

@@ -17,11 +17,11 @@ from gsslam.datasets.synthetic.dataset import delayed_poses
 from gsslam.frontend.depth_registration import (
     DepthRegistration,
     registration_correction,
-    registration_record,
     with_delay,
 )
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.registration_delay import MAX_STD_S, fit_delay
+from gsslam.frontend.registration_record import registration_record
 from gsslam.geometry import so3_exp, so3_log
 
 FPS = 30.0

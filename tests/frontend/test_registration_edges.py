@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gsslam.frontend.depth_registration import DepthRegistration, edge_turn_correction, registration_record
+from gsslam.frontend.depth_registration import DepthRegistration, edge_turn_correction
 from gsslam.frontend.registration_edges import depth_edges, estimate_turn
+from gsslam.frontend.registration_record import registration_record
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
 

@@ -7,7 +7,8 @@ import pytest
 
 from gsslam.config import load_config
 from gsslam.config_schema import ConfigError
-from gsslam.frontend.depth_registration import DepthRegistration, registration_record
+from gsslam.frontend.depth_registration import DepthRegistration
+from gsslam.frontend.registration_record import registration_record
 from gsslam.run.sequence import colour_registration
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-import gsslam.run.sequence as seq
+import gsslam.run.registration as seq
 from gsslam.config import load_config
 from gsslam.datasets import open_dataset
 from gsslam.datasets.synthetic import SyntheticDataset
@@ -49,13 +49,13 @@ def test_mono_run_calibrates_nominal_intrinsics_only(tmp_path, calls):
     own = CameraIntrinsics(525.0, 525.0, 320.0, 240.0, 640, 480)
     calibrated = open_dataset("7scenes", tmp_path / "seq-01", with_depth=False, intrinsics=own)
     mono = load_config(None, [], mode="mono")
-    assert seq._mono_focal(nominal, mono, None) == (1.0, None) and calls == [3]
-    seq._mono_focal(calibrated, mono, None)
+    assert seq.mono_focal_calibration(nominal, mono, None) == (1.0, None) and calls == [3]
+    seq.mono_focal_calibration(calibrated, mono, None)
     assert calls == [3]  # its own intrinsics: trusted
-    seq._mono_focal(calibrated, load_config(None, ["encoder.mono_focal_auto=true"], mode="mono"), None)
+    seq.mono_focal_calibration(calibrated, load_config(None, ["encoder.mono_focal_auto=true"], mode="mono"), None)
     assert calls == [3, 3]  # asked for always
-    seq._mono_focal(nominal, load_config(None, ["encoder.mono_focal_auto_nominal=false"], mode="mono"), None)
-    seq._mono_focal(nominal, load_config(None, [], mode="rgbd"), None)  # RGB-D registers depth instead
+    seq.mono_focal_calibration(nominal, load_config(None, ["encoder.mono_focal_auto_nominal=false"], mode="mono"), None)
+    seq.mono_focal_calibration(nominal, load_config(None, [], mode="rgbd"), None)  # RGB-D registers depth instead
     assert calls == [3, 3]
 
 

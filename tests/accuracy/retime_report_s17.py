@@ -11,7 +11,6 @@ colour truth, RPE, Sim(3) scale, the registration applied and how many frames we
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
-from tsync_report_s16 import ate_cm, truth_without_delay  # noqa: E402
+from tsync_report_s16 import ate_cm, complete_runs, truth_without_delay  # noqa: E402
 
 from gsslam.datasets.synthetic import SyntheticDataset  # noqa: E402
 from gsslam.eval.ate import compute_ate  # noqa: E402
@@ -51,37 +50,25 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
-    for out in a.outs:
-        table = out / "results.json"
-        rows = json.loads(table.read_text())["rows"] if table.is_file() else []
-        by_run = {r["run_id"]: r for r in rows}
-        for run in sorted((out / "runs").iterdir()):
-            m = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").is_file() else {}
-            if m.get("status") != "complete":
-                print(f"| {run.name} | {m.get('status', 'not run')} |")
-                continue
-            row = by_run.get(run.name, {})
-            kw = yaml.safe_load((run / "synthetic.yaml").read_text())
-            cfg = yaml.safe_load((run / "config.yaml").read_text())
-            given = 1000 * float(cfg["encoder"].get("depth_delay_s", 0.0))
-            cf, lc = m.get("colour_focal") or {}, m.get("loop_closure") or {}
-            rt = m.get("depth_retiming") or {}
-            colour = run / "trajectory_colour.tum"
-            colour = colour if colour.is_file() else run / "trajectory.tum"
-            rpe = f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f}" if row else "-"
-            scale = f"{row['sim3_scale']:.4f}" if row else "-"
-            no_delay = ate_cm(truth_without_delay(kw, "depth"), run / "trajectory.tum")
-            colour_own = ate_cm(truth_without_delay(kw, "colour"), colour)
-            reg = f"{cf.get('ratio_applied', nan):.4f} | {1000 * cf.get('baseline_m_applied', nan):.1f}"
-            n_rt = rt.get("frames_retimed", 0) + rt.get("frames_not_retimed", 0)
-            retimed = f"{rt['frames_retimed']}/{n_rt}" if rt else "-"
-            print(
-                f"| {run.name} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {given:g} "
-                f"| {m['frames_posed']} | {100 * m['ate']['rmse_m']:.3f} "
-                f"| {written_at_colour_time_cm(kw, run, m):.3f} | {no_delay:.3f} "
-                f"| {colour_own:.3f} | {rpe} | {scale} | {reg} ({cf.get('handeye_median_chi2', nan):.1f}) "
-                f"| {retimed} | {lc.get('accepted')}/{lc.get('detected')} |"
-            )
+    for run, m, row, kw, colour in complete_runs(a.outs):
+        cfg = yaml.safe_load((run / "config.yaml").read_text())
+        given = 1000 * float(cfg["encoder"].get("depth_delay_s", 0.0))
+        cf, lc = m.get("colour_focal") or {}, m.get("loop_closure") or {}
+        rt = m.get("depth_retiming") or {}
+        rpe = f"{100 * row['rpe_t_m']:.3f} / {row['rpe_r_deg']:.4f}" if row else "-"
+        scale = f"{row['sim3_scale']:.4f}" if row else "-"
+        no_delay = ate_cm(truth_without_delay(kw, "depth"), run / "trajectory.tum")
+        colour_own = ate_cm(truth_without_delay(kw, "colour"), colour)
+        reg = f"{cf.get('ratio_applied', nan):.4f} | {1000 * cf.get('baseline_m_applied', nan):.1f}"
+        n_rt = rt.get("frames_retimed", 0) + rt.get("frames_not_retimed", 0)
+        retimed = f"{rt['frames_retimed']}/{n_rt}" if rt else "-"
+        print(
+            f"| {run.name} | {1000 * float(kw.get('depth_delay_s', 0.0)):g} | {given:g} "
+            f"| {m['frames_posed']} | {100 * m['ate']['rmse_m']:.3f} "
+            f"| {written_at_colour_time_cm(kw, run, m):.3f} | {no_delay:.3f} "
+            f"| {colour_own:.3f} | {rpe} | {scale} | {reg} ({cf.get('handeye_median_chi2', nan):.1f}) "
+            f"| {retimed} | {lc.get('accepted')}/{lc.get('detected')} |"
+        )
 
 
 if __name__ == "__main__":

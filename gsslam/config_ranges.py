@@ -99,6 +99,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.colour_registration_depth_rz_deg": Range(-10.0, 10.0),
     "encoder.depth_delay_frames": _ge(16),
     "encoder.colour_registration_depth_rotation_span": Range(8, 100000),
+    "encoder.colour_registration_depth_rotation_min_deg": Range(0.0, 5.0),
     "encoder.depth_delay_s": Range(-0.1, 0.1),
     "encoder.depth_delay_min_s": Range(0.0, 0.1),
     "encoder.depth_delay_velocity_frames": Range(1, 10),

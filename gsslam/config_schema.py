@@ -84,6 +84,7 @@ class EncoderConfig:
     depth_delay_min_s: float = 0.003  # ... applied (with depth_delay_auto) only when at least this large (s): synchronised data read -1.9..+0.4 ms (session 17)
     colour_registration_depth_rotation_auto: bool = True  # RGB-D: estimate the depth camera's turn from depth vs colour edges and apply it with an estimated registration (registration_edges.py; session 17)
     colour_registration_depth_rotation_span: int = 200  # ... from 20 frames spread over this many first frames
+    colour_registration_depth_rotation_min_deg: float = 0.15  # ... applied only when turned at least this much about x or y (deg): unturned synthetic rooms read up to 0.09 (session 17)
     colour_registration_depth_rotation_baseline: bool = False  # ... and apply the baseline the edges fit with the turn instead of the estimate's (session 17)
     depth_delay_s: float = 0.0  # RGB-D: each depth image taken this long AFTER its colour image (s; negative: before): its depth re-projected by the colour camera's motion over it (depth_retiming.py; 0: off)
     depth_delay_velocity_frames: int = 1  # ... the colour camera's velocity over the delay from the last this many + 1 tracked poses (1: the last two; more: a smaller feedback gain, more lag; session 17)

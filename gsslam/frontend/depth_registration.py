@@ -321,17 +321,22 @@ def with_delay(est: DepthRegistration, frames: list[Frame], flow: FlowEstimator)
         delay_pairs=d.pairs, delay_rms_deg=(d.rms_deg_at_zero, d.rms_deg),
     )  # fmt: skip
 def edge_turn_correction(
-    frames: list[Frame], reg: DepthRegistration, est: DepthRegistration, with_baseline: bool = False
+    frames: list[Frame], reg: DepthRegistration, est: DepthRegistration, with_baseline: bool = False,
+    min_deg: float = 0.0,
 ) -> tuple[DepthRegistration, DepthRegistration]:
-    """The depth camera's turn from edges (:mod:`gsslam.frontend.registration_edges`) at the applied ``k`` and
-    ``b``, recorded in the estimate and applied where observed (``reg`` an estimate, not IDENTITY);
-    ``with_baseline``: the turn and the baseline the edges fit together are applied instead."""
+    """The depth camera's turn from edges (:mod:`gsslam.frontend.registration_edges`) at the applied ``k``
+    and ``b``, recorded in the estimate and applied where observed and turned at least ``min_deg`` about x or
+    y (``reg`` an estimate, not IDENTITY); ``with_baseline``: the turn and the baseline the edges fit
+    together are applied instead."""
     intr = frames[0].intrinsics
     turn = estimate_turn(
         frames, reg.depth_intrinsics(intr), reg.colour_intrinsics(intr), reg.baseline_m, len(frames)
     )
     est = replace(est, edge_turn=turn)
     if not turn.observed:
+        return reg, est
+    if max(abs(turn.rotation_deg[0]), abs(turn.rotation_deg[1])) < min_deg:
+        log.info("depth camera's turn from edges below %.2f deg about x and y: not applied", min_deg)
         return reg, est
     if with_baseline:
         reg = replace(reg, baseline_m=turn.baseline_m, baseline_m_fixed_motion=reg.baseline_m)

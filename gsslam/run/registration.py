@@ -94,7 +94,7 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
         reg, est = edge_turn_correction(
             [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est,
-            enc.colour_registration_depth_rotation_baseline,
+            enc.colour_registration_depth_rotation_baseline, enc.colour_registration_depth_rotation_min_deg,
         )  # fmt: skip
     return reg, est
 

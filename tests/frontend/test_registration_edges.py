@@ -98,3 +98,13 @@ def test_applied_and_recorded():
     assert rec["depth_rotation_deg_estimated"] == list(applied.depth_rotation_deg)
     bare, est = edge_turn_correction([_frame((0.5, -0.4, 0.0), boxes=[])], reg, reg)
     assert bare == reg and not registration_record(bare, est)["depth_rotation_observed"]
+
+
+def test_small_turn_recorded_not_applied():
+    """A turn below ``min_deg`` about x and y (the estimate's spread on unturned rows) is recorded, not applied."""
+    reg = DepthRegistration(1.114, BASELINE_M, "depth", ok=True)
+    applied, est = edge_turn_correction([_frame((0.5, -0.4, -0.15))], reg, reg, min_deg=0.15)
+    assert np.allclose(applied.depth_rotation_deg, (0.5, -0.4, -0.15), atol=0.15)  # large: applied
+    kept, est = edge_turn_correction([_frame((0.0, 0.0, 0.0))], reg, reg, min_deg=0.15)
+    assert est.edge_turn.observed and kept == reg  # ~0 read, not applied
+    assert registration_record(kept, est)["depth_rotation_observed"]

@@ -116,9 +116,11 @@ def test_static_translation_only_and_constant_rate_are_not_observed():
 def test_the_record_carries_the_estimate_and_does_not_apply_it():
     est = DepthRegistration(
         1.114, 0.025, ok=True, delay_s_estimated=0.0158, delay_ok=True, delay_std_s=0.0011, delay_pairs=116,
-        delay_rms_deg=(0.022, 0.013),
+        delay_rms_deg=(0.022, 0.013), delay_s_whole_image=0.0105, delay_bands_s=(0.0024, 0.0028, -0.0033),
     )  # fmt: skip
     rec = registration_record(est, est)
+    assert rec["delay_s_whole_image"] == pytest.approx(0.0105)
+    assert rec["delay_bands_s"][2] == pytest.approx(-0.0033)
     assert rec["delay_s_estimated"] == pytest.approx(0.0158) and rec["delay_ok"] and rec["delay_reason"] == ""
     assert rec["delay_pairs"] == 116 and rec["delay_rms_deg"] < rec["delay_rms_deg_at_zero"]
     assert "delay_s_estimated" not in registration_record(est, DepthRegistration(1.114, 0.025, ok=True))

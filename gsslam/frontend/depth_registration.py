@@ -87,6 +87,8 @@ class DepthRegistration:
     delay_reason: str = ""  # ... why not ok
     delay_pairs: int = 0  # ... from this many pairs' rotation rates
     delay_rms_deg: tuple[float, float] = (float("nan"), float("nan"))  # ... their residuals' RMS at 0 / tau
+    delay_s_whole_image: float = float("nan")  # ... from the whole image's rotations (session 17's; s18)
+    delay_bands_s: tuple[float, ...] = ()  # ... from each band of image rows alone (rolling shutter; s18)
     edge_turn: EdgeTurn | None = None  # the turn from depth against colour edges (registration_edges; s17)
     delay_s: float = 0.0  # depth taken this long after colour, as applied (s; session 17, depth_retiming)
 
@@ -319,6 +321,7 @@ def with_delay(est: DepthRegistration, frames: list[Frame], flow: FlowEstimator)
     return replace(
         est, delay_s_estimated=d.delay_s, delay_ok=d.ok, delay_std_s=d.std_s, delay_reason=d.reason,
         delay_pairs=d.pairs, delay_rms_deg=(d.rms_deg_at_zero, d.rms_deg),
+        delay_s_whole_image=d.whole_image_delay_s, delay_bands_s=d.band_delays_s,
     )  # fmt: skip
 def edge_turn_correction(
     frames: list[Frame], reg: DepthRegistration, est: DepthRegistration, with_baseline: bool = False,

@@ -49,6 +49,8 @@ def registration_record(applied: DepthRegistration, est: DepthRegistration | Non
                 "delay_std_s": float(est.delay_std_s), "delay_reason": est.delay_reason,
                 "delay_pairs": est.delay_pairs, "delay_rms_deg_at_zero": float(est.delay_rms_deg[0]),
                 "delay_rms_deg": float(est.delay_rms_deg[1]),
+                "delay_s_whole_image": float(est.delay_s_whole_image),
+                "delay_bands_s": [float(x) for x in est.delay_bands_s],
             })  # fmt: skip
     else:
         rec["intrinsics_given_for"] = applied.given

@@ -24,6 +24,8 @@ __all__ = ["applied_delay", "colour_registration", "mono_focal_calibration", "re
 
 log = logging.getLogger(__name__)
 
+DELAY_FIELDS = ("delay_s_estimated", "delay_ok", "delay_std_s", "delay_reason", "delay_pairs", "delay_rms_deg")
+
 
 def applied_delay(cfg: Config, est: DepthRegistration | None) -> float:
     """The colour-depth delay a run re-times its depth by (s; 0: none): ``encoder.depth_delay_s`` when given,
@@ -69,13 +71,19 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
     flow = make_flow_estimator(registration_flow_config(cfg))
     reg, est, start = IDENTITY, None, 0
-    while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
-        frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
-        reg, est = registration_correction(
+    given_delay = float(enc.depth_delay_s) if enc.colour_registration_retime else 0.0
+
+    def estimate(frames, delay_s: float):
+        return registration_correction(
             frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
             min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
             joint_weight=enc.colour_registration_joint_weight, handeye=enc.colour_registration_handeye,
+            delay_s=delay_s,
         )  # fmt: skip
+
+    while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
+        frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
+        reg, est = estimate(frames, given_delay)
         if est is None or est.ok:
             break
         start += enc.colour_focal_frames
@@ -90,6 +98,10 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     if enc.depth_delay_auto and est is not None and not reg.is_identity():  # applied by applied_delay
         stop = min(len(ds), max_frames or len(ds), start + enc.depth_delay_frames)
         est = with_delay(est, [ds[i] for i in range(start, stop)], flow)
+        tau = applied_delay(cfg, est) if enc.colour_registration_retime and not given_delay else 0.0
+        if tau:  # the registration again, its pairs re-timed by the delay it led to (session 18)
+            reg, again = estimate(frames, tau)
+            est = replace(again, **{f: getattr(est, f) for f in DELAY_FIELDS}) if again is not None else est
     if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
         span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
         reg, est = edge_turn_correction(

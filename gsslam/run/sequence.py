@@ -225,7 +225,13 @@ def run_dataset(
             depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
             delay_s=applied_delay(cfg, focal),
         )  # fmt: skip
-        retimer = DepthRetimer(reg.delay_s, cfg.encoder.depth_delay_velocity_frames) if reg.delay_s else None
+        retimer = None
+        if reg.delay_s:
+            raw = cfg.encoder.depth_delay_velocity == "depth"  # the velocity from the raw depth (session 18)
+            retimer = DepthRetimer(
+                reg.delay_s, cfg.encoder.depth_delay_velocity_frames,
+                reg.depth_intrinsics(ds.intrinsics) if raw else None, reg.T_colour_depth() if raw else None,
+            )  # fmt: skip
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = mono_focal_calibration(ds, cfg, max_frames)  # 1.0: the given focal stays
@@ -257,7 +263,7 @@ def run_dataset(
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    D = None if retimer is None else retimer.motion(frame.timestamp)
+                    D = None if retimer is None else retimer.motion(frame.timestamp, frame.depth)
                     pose = pipe.process(rescale_focal(register_frame(frame, reg, D), mono_scale))
                     if retimer is not None:
                         retimer.observe(frame.timestamp, pose)

@@ -19,7 +19,8 @@ ICP between the raw depth images ``i-1, i`` and ``i, i+1``, each a velocity at i
 interpolated to the middle of ``[t_i, t_i + tau]``). The images are re-projected in the depth camera's own
 grid at the intrinsics the frames were given (the depth camera's where the dataset gives them, as 7-Scenes
 does; where they are the colour camera's the depth camera's focal is ``k`` times longer and the move ~10 %
-off, a second-order error).
+off, a second-order error). :func:`retime_frame` does the same for one frame (the frames the depth camera's
+turn from edges reads: raw, they show the camera's turn over the delay as the depth camera's).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from gsslam.frontend.encoder import depth_edge_mask
 from gsslam.geometry import invert_T, so3_exp, so3_log
 from gsslam.types import CameraIntrinsics, Frame
 
-__all__ = ["frame_delay_motions", "retime_depth", "retime_pairs"]
+__all__ = ["frame_delay_motions", "retime_depth", "retime_frame", "retime_pairs"]
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +95,20 @@ def frame_delay_motions(
 def retime_depth(depth: np.ndarray, intr: CameraIntrinsics, M: np.ndarray) -> np.ndarray:  # [H, W] float32
     """A depth image moved by the rigid ``M`` (points ``X -> M X``) in its own camera's grid."""
     return reproject_depth(depth, intr, intr, 0.0, 0.0, INTERP_TOL, M[:3, :3], M[:3, 3])
+
+
+def retime_frame(
+    before: Frame | None, frame: Frame, after: Frame | None, tau: float
+) -> Frame | None:  # ``frame`` with its depth at its colour image's time; None where no velocity is known
+    """One raw frame's depth moved to its colour image's time by the velocity of ICP with its neighbours'
+    raw depth (:func:`frame_delay_motions`), e.g. for the depth camera's turn from edges, which otherwise
+    reads the camera's turn over the delay as the depth camera's (session 18: 0.50 deg at 16 ms)."""
+    if frame.depth is None:
+        return None
+    trio = [f for f in (before, frame, after) if f is not None]
+    i = trio.index(frame)
+    M = frame_delay_motions(trio, {i}, tau).get(i)
+    return None if M is None else replace(frame, depth=retime_depth(frame.depth, frame.intrinsics, M))
 
 
 def retime_pairs(

@@ -18,6 +18,7 @@ from gsslam.frontend.depth_registration import (
     with_delay,
 )
 from gsslam.frontend.flow import make_flow_estimator
+from gsslam.frontend.registration_retiming import retime_frame
 from gsslam.frontend.mono_focal import mono_focal_correction
 
 __all__ = ["applied_delay", "colour_registration", "mono_focal_calibration", "registration_flow_config"]
@@ -95,6 +96,7 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         )  # fmt: skip
     elif start > 0:
         log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
+    tau = 0.0  # a delay estimated here and applied (below)
     if enc.depth_delay_auto and est is not None and not reg.is_identity():  # applied by applied_delay
         stop = min(len(ds), max_frames or len(ds), start + enc.depth_delay_frames)
         est = with_delay(est, [ds[i] for i in range(start, stop)], flow)
@@ -104,9 +106,17 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
             est = replace(again, **{f: getattr(est, f) for f in DELAY_FIELDS}) if again is not None else est
     if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
         span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
+        picks = [int(i) for i in np.unique(np.linspace(0, span - 1, 20).round())]
+        delay = given_delay or tau
+        frames = [ds[i] for i in picks]
+        if delay:  # each depth at its colour image's time; a frame without a velocity is left out (session 18)
+            frames = [f for f in (
+                retime_frame(ds[i - 1] if i > 0 else None, ds[i], ds[i + 1] if i + 1 < span else None, delay)
+                for i in picks
+            ) if f is not None]  # fmt: skip
         reg, est = edge_turn_correction(
-            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est,
-            enc.colour_registration_depth_rotation_baseline, enc.colour_registration_depth_rotation_min_deg,
+            frames, reg, est, enc.colour_registration_depth_rotation_baseline,
+            enc.colour_registration_depth_rotation_min_deg,
         )  # fmt: skip
     return reg, est
 

@@ -17,7 +17,7 @@ from gsslam.frontend.colour_focal import FlowPair
 from gsslam.frontend.depth_registration import registration_correction
 from gsslam.frontend.depth_retiming import DepthRetimer
 from gsslam.frontend.flow import make_flow_estimator
-from gsslam.frontend.registration_retiming import frame_delay_motions, retime_depth, retime_pairs
+from gsslam.frontend.registration_retiming import frame_delay_motions, retime_depth, retime_frame, retime_pairs
 from gsslam.geometry import invert_T, make_T, so3_exp, so3_log
 from gsslam.run.registration import registration_flow_config
 from gsslam.types import CameraIntrinsics, Frame
@@ -63,6 +63,17 @@ def test_a_late_depth_image_moved_to_its_colour_image_time(room):
         retime_depth(late[3].depth, intr, truth[3])), agree(late[3].depth)  # fmt: skip
     backwards = agree(retime_depth(late[3].depth, intr, invert_T(M)))
     assert moved > 0.97 and true > 0.97 and as_is < 0.9 and backwards < as_is  # measured 0.981 / 0.984 / 0.845 / 0.506
+
+
+def test_one_frame_re_timed_or_left_out(room):
+    late, sync, _ = room
+    want = sync[3].depth
+    out = retime_frame(late[2], late[3], late[4], TAU)
+    ok = np.isfinite(out.depth) & np.isfinite(want)
+    assert np.mean(np.abs(out.depth[ok] - want[ok]) < 0.01 * want[ok]) > 0.97  # measured 0.981 (raw 0.845)
+    assert out.image is late[3].image and out.intrinsics == late[3].intrinsics
+    # frames 20-22 look at a bare wall: ICP with both neighbours refuses, no velocity, left out (measured)
+    assert retime_frame(late[0], late[1], late[2], TAU) is None
 
 
 def test_a_pair_and_its_motion_move_together():

@@ -226,11 +226,11 @@ def run_dataset(
             delay_s=applied_delay(cfg, focal),
         )  # fmt: skip
         retimer = None
-        if reg.delay_s:
-            raw = cfg.encoder.depth_delay_velocity == "depth"  # the velocity from the raw depth (session 18)
+        if reg.delay_s:  # session 18: the first frames primed, the velocity from the raw depth (options)
+            enc = cfg.encoder
             retimer = DepthRetimer(
-                reg.delay_s, cfg.encoder.depth_delay_velocity_frames,
-                reg.depth_intrinsics(ds.intrinsics) if raw else None, reg.T_colour_depth() if raw else None,
+                reg.delay_s, enc.depth_delay_velocity_frames, reg.depth_intrinsics(ds.intrinsics),
+                reg.T_colour_depth(), raw_velocity=enc.depth_delay_velocity == "depth",
             )  # fmt: skip
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
@@ -260,6 +260,9 @@ def run_dataset(
         interrupted = True
         before_batch: dict[int, np.ndarray] = {}
         try:
+            if retimer is not None and cfg.encoder.depth_delay_prime and start + 1 < n:
+                f0, f1 = ds[start], ds[start + 1]  # the first frames' velocity, one frame read ahead
+                retimer.prime(f0.timestamp, f0.depth, f1.timestamp, f1.depth)
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):

@@ -100,7 +100,7 @@ def test_the_runs_velocity_from_the_raw_depth(room):
     colour = sync.ground_truth().poses  # the colour camera's path
     later = delayed_poses(colour, TAU * sync.fps)  # ... at the depth images' times
     T_cd = make_T(np.eye(3), [0.025, 0.0, 0.0])
-    r = DepthRetimer(TAU, depth_intrinsics=late[0].intrinsics, T_colour_depth=T_cd)
+    r = DepthRetimer(TAU, depth_intrinsics=late[0].intrinsics, T_colour_depth=T_cd, raw_velocity=True)
     got = {}
     for k, f in enumerate(late):
         got[k] = r.motion(f.timestamp, f.depth)
@@ -115,6 +115,21 @@ def test_the_runs_velocity_from_the_raw_depth(room):
         want = invert_T(colour[20 + k]) @ later[20 + k]
         assert np.degrees(np.linalg.norm(so3_log(D[:3, :3].T @ want[:3, :3]))) < 0.1  # measured <= 0.079
         assert np.linalg.norm(D[:3, 3] - want[:3, 3]) < 0.0035  # measured 0.8-2.7 mm
+
+
+def test_the_first_frames_primed_from_the_first_two_depth_images(room):
+    late, _, truth = room  # frames 20, 21: a bare wall, ICP ill-conditioned: its turn alone
+    T_cd = make_T(np.eye(3), [0.025, 0.0, 0.0])
+    r = DepthRetimer(TAU, depth_intrinsics=late[0].intrinsics, T_colour_depth=T_cd)  # velocity: tracked
+    assert r.prime(late[0].timestamp, late[0].depth, late[1].timestamp, late[1].depth)
+    for k in (0, 1):  # no pose tracked yet: the primed velocity
+        D = r.motion(late[k].timestamp, late[k].depth)
+        want = T_cd @ truth[k] @ invert_T(T_cd)  # the colour camera's turn is the depth camera's
+        assert np.degrees(np.linalg.norm(so3_log(D[:3, :3].T @ want[:3, :3]))) < 0.12  # measured 0.09 of 0.5
+        assert np.linalg.norm(D[:3, 3]) < 0.0005  # no translation of its own (ICP slides): the lever arm's
+    assert r.motion(late[2].timestamp) is None  # past the primed frames, no pose: none
+    assert r.record() == {"delay_s": TAU, "frames_retimed": 2, "frames_not_retimed": 1, "frames_primed": 2}
+    assert not DepthRetimer(TAU).prime(0.0, late[0].depth, 1 / 30, late[1].depth)  # no intrinsics: no ICP
 
 
 @pytest.mark.slow  # two registration estimates on 40 frames, ~40 s CPU

@@ -49,7 +49,7 @@ SPAN_FRAMES = 1  # the velocity over this many frames (module doc: the feedback'
 MAX_GAP_FRAMES = 1.5  # ... each missing frame at most this many frame periods (else no velocity)
 MAX_SPEED_M_S = 3.0  # a velocity above these is a jump (a new chain, a re-localisation): not used
 MAX_TURN_DEG_S = 360.0
-VELOCITY_ICP_STRIDES = TRACK_STRIDES + (4,)  # consecutive raw depth images at 640 px wide: 40x30 to 160x120 points
+VELOCITY_ICP_STRIDES = TRACK_STRIDES + (4,)  # raw depth images 640 px wide: 40x30 to 160x120 points
 
 
 def depth_velocity(
@@ -164,10 +164,11 @@ class DepthRetimer:
         return D
 
     def prime(self, t0: float, depth0: np.ndarray | None, t1: float, depth1: np.ndarray | None) -> bool:
-        """The first frames' velocity (frames ``t0`` .. ``t1``, before tracking gives one) from ICP of the first
-        two raw depth images (read one frame ahead; needs ``depth_intrinsics``). Without it the first frame,
-        which starts the map, keeps its depth at the depth image's pose: measured on the Kinect room's first 40
-        frames at 16 ms, that alone costs 0.14 -> 0.43 cm (docs/results.md, session 18). False: no velocity."""
+        """The first frames' velocity (frames ``t0`` .. ``t1``, before tracking gives one) from ICP of the
+        first two raw depth images (read one frame ahead; needs ``depth_intrinsics``). Without it the first
+        frame, which starts the map, keeps its depth at the depth image's pose: measured on the Kinect room's
+        first 40 frames at 16 ms, that alone costs 0.14 -> 0.43 cm (docs/results.md, session 18). False: no
+        velocity."""
         if self.depth_intrinsics is None or depth0 is None or depth1 is None or not t1 > t0:
             return False
         P = depth_velocity(depth0, depth1, self.depth_intrinsics, t1 - t0, rotation_if_ill=True)
@@ -203,7 +204,8 @@ class DepthRetimer:
 
     def record(self) -> dict:
         """For ``metrics.json``."""
-        out = {"delay_s": self.delay_s, "frames_retimed": self.retimed, "frames_not_retimed": self.not_retimed}
+        out = {"delay_s": self.delay_s, "frames_retimed": self.retimed}
+        out["frames_not_retimed"] = self.not_retimed
         if self.depth_intrinsics is not None:  # session 18: the first frames primed, the raw depth's velocity
             out["frames_primed"] = self.primed
         if self.raw_velocity:

@@ -47,7 +47,8 @@ INTERP_TOL = 0.03  # the re-projected depth read bilinearly where the 4 neighbou
 
 def _velocity(fa: Frame, fb: Frame) -> tuple[np.ndarray, float] | None:  # (twist [6] per s, mid time)
     """The depth camera's velocity between two raw depth images (translation, rotation vector; per second,
-    in frame ``a``'s depth camera) and the middle of their colour images' times; None: ICP refuses or a jump."""
+    in frame ``a``'s depth camera) and the middle of their colour images' times; None: ICP refuses or a
+    jump."""
     dt = fb.timestamp - fa.timestamp
     if fa.depth is None or fb.depth is None or not dt > 0:
         return None

@@ -18,14 +18,16 @@ from gsslam.frontend.depth_registration import (
     with_delay,
 )
 from gsslam.frontend.flow import make_flow_estimator
-from gsslam.frontend.registration_retiming import retime_frame
 from gsslam.frontend.mono_focal import mono_focal_correction
+from gsslam.frontend.registration_retiming import retime_frame
 
 __all__ = ["applied_delay", "colour_registration", "mono_focal_calibration", "registration_flow_config"]
 
 log = logging.getLogger(__name__)
 
-DELAY_FIELDS = ("delay_s_estimated", "delay_ok", "delay_std_s", "delay_reason", "delay_pairs", "delay_rms_deg")
+DELAY_FIELDS = (  # the delay's record, kept when the registration is estimated again
+    "delay_s_estimated", "delay_ok", "delay_std_s", "delay_reason", "delay_pairs", "delay_rms_deg",
+)  # fmt: skip
 
 
 def applied_delay(cfg: Config, est: DepthRegistration | None) -> float:
@@ -109,7 +111,7 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         picks = [int(i) for i in np.unique(np.linspace(0, span - 1, 20).round())]
         delay = given_delay or tau
         frames = [ds[i] for i in picks]
-        if delay:  # each depth at its colour image's time; a frame without a velocity is left out (session 18)
+        if delay:  # each depth at its colour image's time, a frame without a velocity left out (session 18)
             frames = [f for f in (
                 retime_frame(ds[i - 1] if i > 0 else None, ds[i], ds[i + 1] if i + 1 < span else None, delay)
                 for i in picks

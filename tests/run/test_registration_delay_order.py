@@ -1,6 +1,6 @@
-"""What the registration estimate is told about the colour-depth delay (session 18): a given delay re-times its
-pairs from the start; an estimated one that is applied makes it estimate again, re-timed; none, or the option
-off, runs it as before. The estimates themselves are replaced by recorders (their behaviour:
+"""What the registration estimate is told about the colour-depth delay (session 18): a given delay
+re-times its pairs from the start; an estimated one that is applied makes it estimate again, re-timed; none,
+or the option off, runs it as before. The estimates themselves are replaced by recorders (their behaviour:
 tests/frontend/test_registration_retiming.py)."""
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def test_an_applied_estimate_estimates_again(calls):
     reg, est = _run("encoder.depth_delay_auto=true")
     assert calls == [0.0, 0.012]  # estimate -> delay -> estimate re-timed by it
     assert reg.baseline_m == pytest.approx(0.018) and est.baseline_m == pytest.approx(0.018)
-    assert est.delay_s_estimated == 0.012 and est.delay_ok and est.delay_pairs == 20  # the delay's record kept
+    assert est.delay_s_estimated == 0.012 and est.delay_ok and est.delay_pairs == 20  # its record kept
     _run("encoder.depth_delay_auto=true", "encoder.depth_delay_min_s=0.02")  # estimated, not applied
     assert calls == [0.0, 0.012, 0.0]
     _run("encoder.depth_delay_auto=true", "encoder.depth_delay_s=-0.008")  # given wins: one estimate

@@ -103,6 +103,7 @@ RANGES: dict[str, Range | tuple[str, ...]] = {
     "encoder.depth_delay_s": Range(-0.1, 0.1),
     "encoder.depth_delay_min_s": Range(0.0, 0.1),
     "encoder.depth_delay_velocity_frames": Range(1, 10),
+    "encoder.depth_delay_velocity": ("tracked", "depth"),
     "encoder.colour_registration_depth_mean_tol": Range(0.0, 0.2),
     "encoder.colour_registration_depth_interp_tol": Range(0.0, 0.2),
     "encoder.colour_registration_joint_weight": NONNEG,

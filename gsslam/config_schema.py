@@ -88,6 +88,9 @@ class EncoderConfig:
     colour_registration_depth_rotation_baseline: bool = False  # ... and apply the baseline the edges fit with the turn instead of the estimate's (session 17)
     depth_delay_s: float = 0.0  # RGB-D: each depth image taken this long AFTER its colour image (s; negative: before): its depth re-projected by the colour camera's motion over it (depth_retiming.py; 0: off)
     depth_delay_velocity_frames: int = 1  # ... the colour camera's velocity over the delay from the last this many + 1 tracked poses (1: the last two; more: a smaller feedback gain, more lag; session 17)
+    depth_delay_prime: bool = True  # ... the first frames (before tracking gives a velocity) re-timed by the velocity of ICP between the first two raw depth images, read one frame ahead (the first frame starts the map; session 18)
+    depth_delay_velocity: str = "tracked"  # ... the velocity over the delay: "tracked" (the last tracked poses, depth_delay_velocity_frames) or "depth" (ICP between the previous and this frame's raw depth images: not fed back by tracking; the tracked poses where ICP refuses; session 18)
+    colour_registration_retime: bool = True  # ... the registration estimate's pairs re-timed by the applied delay (given, or estimated with depth_delay_auto: then estimated again), their depth images and ICP motion moved to the colour images' times by ICP velocities of the neighbouring raw depth images (registration_retiming.py; acts only with a delay; session 18)
     min_texture_gradient: float = 0.01  # mono: pixels below this local gradient (intensity/px) get no depth
     mono_dis_preset: str = ""  # DIS preset of the mono encoder's flows ("": the pipeline's; docs/results.md)
     mono_shared_depth_sigma: float = 0.0  # mono: relative std of the shared frame's depth as a prior in the local BA (0: off)

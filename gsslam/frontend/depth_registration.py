@@ -44,6 +44,7 @@ from gsslam.frontend.registration_delay import estimate_delay
 from gsslam.frontend.registration_edges import EdgeTurn, estimate_turn
 from gsslam.frontend.registration_handeye import handeye_baseline
 from gsslam.frontend.registration_joint import joint_baseline
+from gsslam.frontend.registration_retiming import retime_pairs
 from gsslam.geometry import so3_exp
 from gsslam.types import CameraIntrinsics, Frame
 
@@ -243,6 +244,7 @@ def registration_correction(
     fallback_gap: int | None = None,  # colour_focal.flow_pairs: narrower pairs when the wide ones are few
     joint_weight: float = 0.0,  # > 0: the baseline from motions re-solved with the flow (registration_joint)
     handeye: bool = False,  # the baseline from the colour vs depth motions where pairs agree (registration_handeye)
+    delay_s: float = 0.0,  # depth taken this long after colour: the pairs' depth re-timed (registration_retiming)
 ) -> tuple[DepthRegistration, DepthRegistration | None]:
     """The registration to apply (IDENTITY: leave the frames as they are) and the estimate.
 
@@ -256,11 +258,16 @@ def registration_correction(
     motion a prior of that weight (:mod:`gsslam.frontend.registration_joint`, session 14). ``handeye``: an
     applied registration's baseline is then taken from each pair's colour motion (flow) against its depth
     motion (ICP), pooled by their covariances, where the pairs agree with that model
-    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays.
+    (:mod:`gsslam.frontend.registration_handeye`, session 15); else the fit's stays. ``delay_s`` != 0: each
+    pair's depth image is first moved to its colour image's time (:mod:`gsslam.frontend.registration_retiming`,
+    session 18); 0 runs exactly the code of before.
     """
     if sum(f.depth is not None for f in frames) < 8:
         return IDENTITY, None
     pairs = flow_pairs(frames, flow, fallback_gap=fallback_gap)
+    if delay_s:
+        pairs, moved = retime_pairs(pairs, frames, delay_s)
+        log.info("registration pairs re-timed by %.1f ms: %d of %d", 1e3 * delay_s, moved, len(pairs))
     intr = frames[0].intrinsics
 
     def unregistered(e: DepthRegistration) -> bool:

@@ -19,10 +19,15 @@ from gsslam.frontend.depth_registration import (
 )
 from gsslam.frontend.flow import make_flow_estimator
 from gsslam.frontend.mono_focal import mono_focal_correction
+from gsslam.frontend.registration_retiming import retime_frame
 
 __all__ = ["applied_delay", "colour_registration", "mono_focal_calibration", "registration_flow_config"]
 
 log = logging.getLogger(__name__)
+
+DELAY_FIELDS = (  # the delay's record, kept when the registration is estimated again
+    "delay_s_estimated", "delay_ok", "delay_std_s", "delay_reason", "delay_pairs", "delay_rms_deg",
+)  # fmt: skip
 
 
 def applied_delay(cfg: Config, est: DepthRegistration | None) -> float:
@@ -69,13 +74,19 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
     end = min(len(ds), max_frames or len(ds), max(enc.colour_focal_max_frames, enc.colour_focal_frames))
     flow = make_flow_estimator(registration_flow_config(cfg))
     reg, est, start = IDENTITY, None, 0
-    while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
-        frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
-        reg, est = registration_correction(
+    given_delay = float(enc.depth_delay_s) if enc.colour_registration_retime else 0.0
+
+    def estimate(frames, delay_s: float):
+        return registration_correction(
             frames, flow, min_dev=enc.colour_focal_min_dev, min_baseline_m=enc.colour_focal_min_baseline_m,
             min_gain=enc.colour_focal_min_gain, fallback_gap=enc.colour_focal_fallback_gap or None,
             joint_weight=enc.colour_registration_joint_weight, handeye=enc.colour_registration_handeye,
+            delay_s=delay_s,
         )  # fmt: skip
+
+    while start == 0 or start + 8 <= end:  # the next frames when these gave no evidence (e.g. a bare wall)
+        frames = [ds[i] for i in range(start, min(start + enc.colour_focal_frames, end))]
+        reg, est = estimate(frames, given_delay)
         if est is None or est.ok:
             break
         start += enc.colour_focal_frames
@@ -87,14 +98,27 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         )  # fmt: skip
     elif start > 0:
         log.info("depth-to-colour registration estimated from frames %d-%d", start, start + len(frames) - 1)
+    tau = 0.0  # a delay estimated here and applied (below)
     if enc.depth_delay_auto and est is not None and not reg.is_identity():  # applied by applied_delay
         stop = min(len(ds), max_frames or len(ds), start + enc.depth_delay_frames)
         est = with_delay(est, [ds[i] for i in range(start, stop)], flow)
+        tau = applied_delay(cfg, est) if enc.colour_registration_retime and not given_delay else 0.0
+        if tau:  # the registration again, its pairs re-timed by the delay it led to (session 18)
+            reg, again = estimate(frames, tau)
+            est = replace(again, **{f: getattr(est, f) for f in DELAY_FIELDS}) if again is not None else est
     if enc.colour_registration_depth_rotation_auto and est is not None and not reg.is_identity():
         span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
+        picks = [int(i) for i in np.unique(np.linspace(0, span - 1, 20).round())]
+        delay = given_delay or tau
+        frames = [ds[i] for i in picks]
+        if delay:  # each depth at its colour image's time, a frame without a velocity left out (session 18)
+            frames = [f for f in (
+                retime_frame(ds[i - 1] if i > 0 else None, ds[i], ds[i + 1] if i + 1 < span else None, delay)
+                for i in picks
+            ) if f is not None]  # fmt: skip
         reg, est = edge_turn_correction(
-            [ds[int(i)] for i in np.unique(np.linspace(0, span - 1, 20).round())], reg, est,
-            enc.colour_registration_depth_rotation_baseline, enc.colour_registration_depth_rotation_min_deg,
+            frames, reg, est, enc.colour_registration_depth_rotation_baseline,
+            enc.colour_registration_depth_rotation_min_deg,
         )  # fmt: skip
     return reg, est
 

@@ -225,7 +225,13 @@ def run_dataset(
             depth_interp_tol=cfg.encoder.colour_registration_depth_interp_tol,
             delay_s=applied_delay(cfg, focal),
         )  # fmt: skip
-        retimer = DepthRetimer(reg.delay_s, cfg.encoder.depth_delay_velocity_frames) if reg.delay_s else None
+        retimer = None
+        if reg.delay_s:  # session 18: the first frames primed, the velocity from the raw depth (options)
+            enc = cfg.encoder
+            retimer = DepthRetimer(
+                reg.delay_s, enc.depth_delay_velocity_frames, reg.depth_intrinsics(ds.intrinsics),
+                reg.T_colour_depth(), raw_velocity=enc.depth_delay_velocity == "depth",
+            )  # fmt: skip
         if not reg.is_identity() and cfg.encoder.colour_registration_icp:  # unregistered depth: re-projected
             cfg = replace(cfg, encoder=replace(cfg.encoder, rgbd_icp=True))  # poses from depth (ICP)
         mono_scale, mono_focal = mono_focal_calibration(ds, cfg, max_frames)  # 1.0: the given focal stays
@@ -254,10 +260,13 @@ def run_dataset(
         interrupted = True
         before_batch: dict[int, np.ndarray] = {}
         try:
+            if retimer is not None and cfg.encoder.depth_delay_prime and start + 1 < n:
+                f0, f1 = ds[start], ds[start + 1]  # the first frames' velocity, one frame read ahead
+                retimer.prime(f0.timestamp, f0.depth, f1.timestamp, f1.depth)
             with DeferredInterrupt() as stop, FramePrefetcher(ds, range(start, n)) as frames:
                 # decoding overlaps tracking; same order as ds[i]
                 for i, frame in zip(range(start, n), frames):
-                    D = None if retimer is None else retimer.motion(frame.timestamp)
+                    D = None if retimer is None else retimer.motion(frame.timestamp, frame.depth)
                     pose = pipe.process(rescale_focal(register_frame(frame, reg, D), mono_scale))
                     if retimer is not None:
                         retimer.observe(frame.timestamp, pose)

@@ -330,6 +330,8 @@ def with_delay(est: DepthRegistration, frames: list[Frame], flow: FlowEstimator)
         delay_pairs=d.pairs, delay_rms_deg=(d.rms_deg_at_zero, d.rms_deg),
         delay_s_whole_image=d.whole_image_delay_s, delay_bands_s=d.band_delays_s,
     )  # fmt: skip
+
+
 def edge_turn_correction(
     frames: list[Frame], reg: DepthRegistration, est: DepthRegistration, with_baseline: bool = False,
     min_deg: float = 0.0,

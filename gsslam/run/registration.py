@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 
 DELAY_FIELDS = (  # the delay's record, kept when the registration is estimated again
     "delay_s_estimated", "delay_ok", "delay_std_s", "delay_reason", "delay_pairs", "delay_rms_deg",
+    "delay_s_whole_image", "delay_bands_s",
 )  # fmt: skip
 
 

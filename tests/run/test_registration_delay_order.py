@@ -29,7 +29,10 @@ def calls(monkeypatch):
         return est, est
 
     def with_delay(est, frames, flow):
-        return replace(est, delay_s_estimated=0.012, delay_ok=True, delay_std_s=0.001, delay_pairs=20)
+        return replace(
+            est, delay_s_estimated=0.012, delay_ok=True, delay_std_s=0.001, delay_pairs=20,
+            delay_s_whole_image=0.02, delay_bands_s=(0.011, 0.012, 0.013),
+        )  # fmt: skip
 
     monkeypatch.setattr(registration, "registration_correction", estimate)
     monkeypatch.setattr(registration, "with_delay", with_delay)
@@ -58,6 +61,7 @@ def test_an_applied_estimate_estimates_again(calls):
     assert calls == [0.0, 0.012]  # estimate -> delay -> estimate re-timed by it
     assert reg.baseline_m == pytest.approx(0.018) and est.baseline_m == pytest.approx(0.018)
     assert est.delay_s_estimated == 0.012 and est.delay_ok and est.delay_pairs == 20  # its record kept
+    assert est.delay_s_whole_image == 0.02 and est.delay_bands_s == (0.011, 0.012, 0.013)
     _run("encoder.depth_delay_auto=true", "encoder.depth_delay_min_s=0.02")  # estimated, not applied
     assert calls == [0.0, 0.012, 0.0]
     _run("encoder.depth_delay_auto=true", "encoder.depth_delay_s=-0.008")  # given wins: one estimate

@@ -79,7 +79,7 @@ class EncoderConfig:
     colour_registration_depth_rx_deg: float = 0.0  # ... and the depth camera turned against the colour one: R_colour_depth's rotation vector, x (deg; session 16)
     colour_registration_depth_ry_deg: float = 0.0  # ... y
     colour_registration_depth_rz_deg: float = 0.0  # ... z
-    depth_delay_auto: bool = False  # RGB-D, registration estimated: also estimate the colour-depth delay (depth image this long after its colour image) from the two cameras' rotation rates (registration_delay.py; recorded in metrics.json colour_focal) and re-time the depth by it where trusted (depth_retiming.py; depth_delay_s, when given, wins; session 17)
+    depth_delay_auto: bool = True  # RGB-D, registration estimated: also estimate the colour-depth delay (depth image this long after its colour image) from the two cameras' rotation rates per band of image rows (registration_delay.py; recorded in metrics.json colour_focal) and re-time the depth by it where trusted (depth_retiming.py; depth_delay_s, when given, wins; session 17, on since session 18: synchronised rows read under 1 ms and run as before)
     depth_delay_frames: int = 120  # ... over this many frames from the registration's window (the first 40 rarely turn at a changing rate)
     depth_delay_min_s: float = 0.003  # ... applied (with depth_delay_auto) only when at least this large (s): synchronised data read -1.9..+0.4 ms (session 17)
     colour_registration_depth_rotation_auto: bool = True  # RGB-D: estimate the depth camera's turn from depth vs colour edges and apply it with an estimated registration (registration_edges.py; session 17)

@@ -22,7 +22,8 @@ def test_given_delay_wins_over_the_estimate():
 
 def test_estimate_applied_only_when_asked_trusted_and_large_enough():
     auto = _cfg("encoder.depth_delay_auto=true")
-    assert applied_delay(_cfg(), EST) == 0.0  # auto off: recorded only
+    assert applied_delay(_cfg("encoder.depth_delay_auto=false"), EST) == 0.0  # auto off: recorded only
+    assert applied_delay(_cfg(), EST) == 0.0105  # on by default (session 18)
     assert applied_delay(auto, EST) == 0.0105
     assert applied_delay(auto, replace(EST, delay_ok=False)) == 0.0  # not observed / not trusted
     assert applied_delay(auto, replace(EST, delay_s_estimated=-0.0011)) == 0.0  # within the synchronised spread

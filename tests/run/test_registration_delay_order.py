@@ -45,7 +45,7 @@ def _run(*sets):
 
 
 def test_no_delay_estimates_as_before(calls):
-    reg, est = _run()
+    reg, est = _run("encoder.depth_delay_auto=false")
     assert calls == [0.0] and reg.baseline_m == 0.030
 
 

@@ -11,7 +11,8 @@ rates of pairs (k, k + 2) over the stretch, fitted on the first 40 / 80 / all fr
 
 Rows: ``room_splat`` (the suite's synth_room1000_kinect as tests/accuracy/tsync_room400_s16.yaml has it,
 with ``depth_delay_s``), ``room_rc`` (the same, depth ray-cast), ``fbf_7scenes`` / ``s2_blur_7scenes`` (the
-real TUM teddy 7-Scenes-like playbacks; no delay can be set: ``--delays-ms`` ignored), ``tum`` (the real
+real TUM teddy 7-Scenes-like playbacks; ``fbf_misreg`` the same with the colour intrinsics given; no delay
+can be set: ``--delays-ms`` ignored), ``tum`` (the real
 registered teddy: k 1, b 0).
 """
 
@@ -48,6 +49,9 @@ ROWS = {
         "playback", TEDDY, base="tum", pattern="fbfbf", stride=2, degrade=BLUR, misregister=SEVEN
     ),
     "tum": lambda d: open_dataset("tum", TEDDY),
+    "fbf_misreg": lambda d: open_dataset(  # colour intrinsics given (the tracking suite's row)
+        "playback", TEDDY, **FBF, misregister={"baseline_m": 0.025, "focal_scale": 1.114}
+    ),
 }
 SYNTHETIC = ("room_splat", "room_rc")
 

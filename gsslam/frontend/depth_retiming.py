@@ -174,8 +174,11 @@ class DepthRetimer:
         P = depth_velocity(depth0, depth1, self.depth_intrinsics, t1 - t0, rotation_if_ill=True)
         if P is None:
             return False
-        self._primed = (float(t0), float(t1), self.T_colour_depth @ P @ invert_T(self.T_colour_depth))
+        self._primed = (float(t0), float(t1), self._in_colour(P))
         return True
+
+    def _in_colour(self, P: np.ndarray) -> np.ndarray:  # the depth camera's motion P as the colour camera's
+        return self.T_colour_depth @ P @ invert_T(self.T_colour_depth)
 
     def _depth_motion(self, timestamp: float, depth: np.ndarray | None) -> np.ndarray | None:
         prev, self._raw = self._raw, (None if depth is None else (float(timestamp), depth))
@@ -189,8 +192,7 @@ class DepthRetimer:
         self._raw_T = None if P is None else invert_T(P)
         if P is None:
             return None
-        Pc = self.T_colour_depth @ P @ invert_T(self.T_colour_depth)  # the colour camera's motion
-        return delay_motion(np.eye(4), prev[0], Pc, timestamp, timestamp, self.delay_s)
+        return delay_motion(np.eye(4), prev[0], self._in_colour(P), timestamp, timestamp, self.delay_s)
 
     def _motion(self, timestamp: float) -> np.ndarray | None:
         if len(self._last) < self.span + 1 or self._period is None:
@@ -204,8 +206,7 @@ class DepthRetimer:
 
     def record(self) -> dict:
         """For ``metrics.json``."""
-        out = {"delay_s": self.delay_s, "frames_retimed": self.retimed}
-        out["frames_not_retimed"] = self.not_retimed
+        out = {"delay_s": self.delay_s, "frames_retimed": self.retimed, "frames_not_retimed": self.not_retimed}
         if self.depth_intrinsics is not None:  # session 18: the first frames primed, the raw depth's velocity
             out["frames_primed"] = self.primed
         if self.raw_velocity:

@@ -111,12 +111,13 @@ def colour_registration(ds, cfg: Config, max_frames: int | None):  # -> (to appl
         span = min(len(ds), max_frames or len(ds), enc.colour_registration_depth_rotation_span)
         picks = [int(i) for i in np.unique(np.linspace(0, span - 1, 20).round())]
         delay = given_delay or tau
-        frames = [ds[i] for i in picks]
         if delay:  # each depth at its colour image's time, a frame without a velocity left out (session 18)
             frames = [f for f in (
                 retime_frame(ds[i - 1] if i > 0 else None, ds[i], ds[i + 1] if i + 1 < span else None, delay)
                 for i in picks
             ) if f is not None]  # fmt: skip
+        else:
+            frames = [ds[i] for i in picks]
         reg, est = edge_turn_correction(
             frames, reg, est, enc.colour_registration_depth_rotation_baseline,
             enc.colour_registration_depth_rotation_min_deg,
